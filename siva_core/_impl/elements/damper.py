@@ -1,0 +1,6 @@
+"""Viscous damper: f = c dv."""
+from ._base import ElementKind, register_element
+
+DAMPER = register_element(ElementKind(
+    name="damper", coefficients=("c",), force=lambda d, dv, c: c * dv,
+    expr="c * dv", linear=frozenset({"c"}), doc="f = c*dv"))
