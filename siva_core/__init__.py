@@ -10,7 +10,10 @@ Public surface (the rest lives under ``_impl``):
 from ._impl.elements import ElementKind, register_element
 from ._impl.processing import Processing, States
 from ._impl.recording import Recording, RecordingError
+from ._impl.siva import Identification, Siva
 from ._impl.structure import SpecError, Structure
+from ._impl.training import SivaSettings, SivaTrainer
 
 __all__ = ["Structure", "Recording", "Processing", "States", "ElementKind",
-           "register_element", "SpecError", "RecordingError"]
+           "register_element", "SpecError", "RecordingError", "Siva", "SivaSettings",
+           "SivaTrainer", "Identification"]

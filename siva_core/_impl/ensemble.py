@@ -1,0 +1,94 @@
+"""Uncertainty from samples: the Approach II running ensemble, normal fits, ESS.
+
+Per-epoch samples are autocorrelated (each epoch starts where the last ended), so the
+number of samples overstates the information; the effective sample size (Geyer's initial
+positive sequence) says how many independent draws they are worth.
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Sequence
+
+import numpy as np
+
+Z95 = 1.959963984540054
+
+
+def effective_sample_size(x: np.ndarray) -> float:
+    """ESS of a 1-D chain, n / (1 + 2 sum rho_k), Geyer's initial positive sequence."""
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    if n < 4 or np.ptp(x) == 0:
+        return float(n)
+    x = x - x.mean()
+    f = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[:n]
+    acf /= acf[0]
+    tau = 1.0
+    for k in range(1, n - 1, 2):
+        pair = acf[k] + acf[k + 1]
+        if pair <= 0:
+            break
+        tau += 2 * pair
+    return float(min(n, n / tau))
+
+
+def normal_summary(samples: np.ndarray, names: Sequence[str], *, ess: bool = True) -> dict[str, dict]:
+    """Normal fit per parameter: mean, std, 95 % interval mean +- 1.96 std, percentiles, ESS."""
+    samples = np.atleast_2d(np.asarray(samples, dtype=float))
+    out: dict[str, dict] = {}
+    for k, name in enumerate(names):
+        col = samples[:, k]
+        mean = float(col.mean())
+        std = float(col.std(ddof=1)) if len(col) > 1 else 0.0
+        lo, hi = np.percentile(col, [2.5, 97.5]) if len(col) else (mean, mean)
+        out[name] = {"mean": mean, "std": std, "ci95": [mean - Z95 * std, mean + Z95 * std],
+                     "percentile95": [float(lo), float(hi)], "n": int(len(col))}
+        if ess:
+            out[name]["ess"] = effective_sample_size(col)
+    return out
+
+
+class Ensemble:
+    """Running Approach II ensemble: per-epoch parameter samples after convergence.
+
+    Bounded by ``maxlen`` (the most recent epochs), so a service that trains forever keeps
+    describing the current structure rather than its whole past.
+    """
+
+    def __init__(self, maxlen: int | None = None) -> None:
+        self.maxlen = maxlen
+        self._samples: deque[np.ndarray] = deque(maxlen=maxlen)
+        self._epochs: deque[int] = deque(maxlen=maxlen)
+
+    def add(self, theta: np.ndarray, epoch: int) -> None:
+        self._samples.append(np.asarray(theta, dtype=float).copy())
+        self._epochs.append(int(epoch))
+
+    def reset(self) -> None:
+        self._samples.clear()
+        self._epochs.clear()
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    @property
+    def samples(self) -> np.ndarray:
+        return np.array(self._samples) if self._samples else np.empty((0, 0))
+
+    @property
+    def epochs(self) -> np.ndarray:
+        return np.array(self._epochs, dtype=int)
+
+    def summary(self, names: Sequence[str]) -> dict[str, dict]:
+        if not self._samples:
+            return {}
+        return normal_summary(self.samples, names)
+
+    def state_dict(self) -> dict:
+        return {"maxlen": self.maxlen, "samples": self.samples.tolist(), "epochs": self.epochs.tolist()}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.maxlen = d["maxlen"]
+        self._samples = deque((np.asarray(s, dtype=float) for s in d["samples"]), maxlen=self.maxlen)
+        self._epochs = deque(d["epochs"], maxlen=self.maxlen)

@@ -1,0 +1,84 @@
+"""The paper's two networks (Sec. 2.3): parameter generator P and discriminator D."""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+SLOPE = 0.2  # LeakyReLU negative slope (paper)
+
+
+class ParameterGenerator(nn.Module):
+    """Noise z -> physical parameters, 64 -> 32 -> 16 -> out, LeakyReLU 0.2, linear output.
+
+    Scientific notation (paper Sec. 2.3): for each parameter the net outputs a mantissa
+    correction ``a`` and an exponent correction ``b``; the parameter is
+    ``(m0 + a) * 10 ** (e0 + b)``.  ``e0`` (and ``m0``) come from the scale hint or the
+    order of magnitude of a least-squares first guess, so every output starts O(1) and one
+    learning rate serves parameters that span ten orders of magnitude.  With
+    ``scientific=False`` the output is ``m0 * 10**e0 * (1 + a)`` (plain relative scaling).
+    """
+
+    def __init__(self, n_params: int, latent_dim: int = 16, hidden: tuple[int, ...] = (64, 32, 16),
+                 scientific: bool = True) -> None:
+        super().__init__()
+        self.n_params = n_params
+        self.latent_dim = latent_dim
+        self.scientific = scientific
+        layers: list[nn.Module] = []
+        width = latent_dim
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.LeakyReLU(SLOPE)]
+            width = h
+        self.head = nn.Linear(width, 2 * n_params if scientific else n_params)
+        self.body = nn.Sequential(*layers)
+        # start at the reference point: small output weights, zero bias
+        with torch.no_grad():
+            self.head.weight.mul_(0.1)
+            self.head.bias.zero_()
+        self.register_buffer("m0", torch.ones(n_params, dtype=torch.float64))
+        self.register_buffer("e0", torch.zeros(n_params, dtype=torch.float64))
+
+    def set_reference(self, values: torch.Tensor, exponents: torch.Tensor | None = None) -> None:
+        """Centre the outputs on ``values`` (mantissa/exponent split unless given)."""
+        values = values.to(torch.float64)
+        if exponents is None:
+            mag = values.abs().clamp_min(1e-300)
+            exponents = torch.floor(torch.log10(mag))
+        self.e0.copy_(exponents.to(torch.float64))
+        self.m0.copy_(values / 10.0 ** self.e0)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        out = self.head(self.body(z)).to(torch.float64)
+        n = self.n_params
+        if self.scientific:
+            return (self.m0 + out[..., :n]) * torch.pow(10.0, self.e0 + out[..., n:])
+        return self.m0 * 10.0 ** self.e0 * (1.0 + out[..., :n])
+
+
+class Discriminator(nn.Module):
+    """Features of a (state, acceleration) sample -> logit of "real", 64 -> 32 -> 1.
+
+    The paper applies a sigmoid to the output; we return the logit and apply the sigmoid
+    inside ``BCEWithLogits`` (the same loss, numerically stable).  ``prob`` gives D(x).
+    """
+
+    def __init__(self, in_dim: int, hidden: tuple[int, ...] = (64, 32)) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = in_dim
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.LeakyReLU(SLOPE)]
+            width = h
+        layers.append(nn.Linear(width, 1))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x).squeeze(-1)
+
+    def prob(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.forward(x))
+
+
+LN4 = math.log(4.0)

@@ -1,0 +1,282 @@
+"""The SIVA estimator: records in, identified parameters with uncertainty out.
+
+``Siva(structure).fit(train, val)`` follows the paper and adds one step it suggests
+(Sec. 3.1, "initial guesses for optimization routines"): the recommended ``best`` value
+is an output-error refinement started from Approach III, simulating the model with the
+measured force and passing simulation and measurement through the same processing chain,
+so the final estimate does not inherit the chain's bias.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .ensemble import normal_summary
+from .processing import Processing, States
+from .recording import Recording
+from .structure import Structure
+from .training import SivaSettings, SivaTrainer
+
+Progress = Callable[[str], None]
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def choose_processing(processing: str | dict | Processing | None, recordings: Sequence[Recording],
+                      dofs: Sequence[str]) -> Processing:
+    """'auto' (chosen from the data), 'none', 'paper', a dict of settings, or an instance."""
+    if isinstance(processing, Processing):
+        return processing
+    if processing is None or processing == "none":
+        return Processing()
+    if processing == "paper":
+        return Processing.paper()
+    if processing == "auto":
+        auto = getattr(Processing, "auto", None)
+        return auto(recordings, dofs) if auto else Processing()
+    if isinstance(processing, str):
+        processing = json.loads(processing)
+    if isinstance(processing, dict):
+        kw = dict(processing)
+        if "bandpass" in kw and kw["bandpass"] is not None:
+            kw["bandpass"] = tuple(kw["bandpass"])
+        return Processing(**kw)
+    raise ValueError(f"processing: cannot use {processing!r}")
+
+
+@dataclass
+class Identification:
+    """Everything one SIVA run produced (``to_json`` gives the CONTRACT shape)."""
+
+    structure: Structure
+    approach_I: dict[str, dict]
+    approach_II: dict[str, dict]
+    approach_III: np.ndarray
+    best: np.ndarray
+    best_std: np.ndarray | None
+    samples_I: np.ndarray
+    samples_II: np.ndarray
+    history: dict[str, list]
+    converged_epoch: int | None
+    epochs: int
+    discriminator: dict[str, Any]
+    metrics: dict[str, Any]
+    timing_s: dict[str, float]
+    baselines: dict[str, dict[str, float]] = field(default_factory=dict)
+    processing: Processing | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def names(self) -> list[str]:
+        return self.structure.free
+
+    def estimates(self) -> dict[str, np.ndarray]:
+        """Each approach's point estimate as a parameter vector."""
+        n = self.names
+        return {"approach_I": np.array([self.approach_I[p]["mean"] for p in n]),
+                "approach_II": np.array([self.approach_II[p]["mean"] for p in n]),
+                "approach_III": self.approach_III, "best": self.best}
+
+    def to_json(self) -> dict[str, Any]:
+        params: dict[str, Any] = {}
+        for k, p in enumerate(self.names):
+            entry: dict[str, Any] = {
+                "approach_I": _stats(self.approach_I[p]),
+                "approach_II": {**_stats(self.approach_II[p]), "ess": self.approach_II[p].get("ess")},
+                "approach_III": float(self.approach_III[k]),
+                "best": float(self.best[k]),
+            }
+            if self.best_std is not None:
+                s = float(self.best_std[k])
+                entry["best_std"] = s
+                entry["best_ci95"] = [float(self.best[k] - 1.96 * s), float(self.best[k] + 1.96 * s)]
+            params[p] = entry
+        return {"parameters": params, "metrics": self.metrics, "discriminator": self.discriminator,
+                "timing_s": self.timing_s, "baselines": self.baselines,
+                "training": {"epochs": self.epochs, "converged_epoch": self.converged_epoch,
+                             "n_ensemble": int(len(self.samples_II))},
+                "processing": _processing_json(self.processing), "notes": self.notes}
+
+
+def _stats(d: dict) -> dict:
+    return {"mean": d["mean"], "std": d["std"], "ci95": d["ci95"]}
+
+
+def _processing_json(p: Processing | None) -> dict | None:
+    if p is None:
+        return None
+    from dataclasses import asdict
+
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(p).items()}
+
+
+class Siva:
+    """SIVA estimator (scikit-learn style: settings in ``__init__``, ``fit`` returns self).
+
+    Parameters
+    ----------
+    structure: the model (known masses, element kinds; parameters to identify).
+    processing: the chain for measured records ('auto', 'none', 'paper', dict, Processing).
+    settings: training hyper-parameters (``SivaSettings.fast()`` by default;
+        ``preset="paper"`` gives the paper's).
+    n_samples: Approach I sample count (paper: 1000).
+    n_candidates: at most this many Approach II samples are simulated for Approach III.
+    refine: run the output-error refinement that gives ``best``.
+    baselines: also fit plain least squares and SINDy (pysindy) on the same states.
+    """
+
+    def __init__(self, structure: Structure, *, processing: Any = "auto",
+                 settings: SivaSettings | None = None, preset: str = "fast", seed: int = 42,
+                 max_epochs: int | None = None, n_samples: int = 1000, n_candidates: int = 600,
+                 refine: bool = True, baselines: bool = True, progress: Progress | None = _stderr,
+                 progress_every: int = 25) -> None:
+        self.structure = structure
+        self.processing = processing
+        self.settings = settings
+        self.preset = preset
+        self.seed = seed
+        self.max_epochs = max_epochs
+        self.n_samples = n_samples
+        self.n_candidates = n_candidates
+        self.refine = refine
+        self.baselines = baselines
+        self.progress = progress
+        self.progress_every = progress_every
+
+    def _say(self, msg: str) -> None:
+        if self.progress:
+            self.progress(msg)
+
+    def _settings(self) -> SivaSettings:
+        if self.settings is not None:
+            return self.settings
+        make = SivaSettings.paper if self.preset == "paper" else SivaSettings.fast
+        kw: dict[str, Any] = {"seed": self.seed}
+        if self.max_epochs is not None:
+            kw["max_epochs"] = self.max_epochs
+        return make(**kw)
+
+    def fit(self, train: Sequence[Recording], val: Sequence[Recording]) -> "Siva":
+        t_all = time.perf_counter()
+        st = self.structure
+        names = st.free
+        timing: dict[str, float] = {}
+        proc = choose_processing(self.processing, [*train, *val], st.dofs)
+        self.processing_ = proc
+        t0 = time.perf_counter()
+        self.train_states_ = [proc.apply(r, st.dofs) for r in train]
+        self.val_states_ = [proc.apply(r, st.dofs) for r in val]
+        timing["processing"] = time.perf_counter() - t0
+
+        # --- SIVA training (until converged, then the Approach II harvest)
+        settings = self._settings()
+        trainer = SivaTrainer(st, settings)
+        trainer.set_data(self.train_states_, self.val_states_)
+        t0 = time.perf_counter()
+        while trainer.epoch < settings.max_epochs:
+            log = trainer.run_epoch()
+            if self.progress and (log.epoch % self.progress_every == 0):
+                rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(names, log.theta))
+                self._say(f"epoch {log.epoch:4d}  D={log.loss_d:.4f} (ln4=1.3863)  "
+                          f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
+                          f"{'converged ' if log.converged else ''}{rel}")
+            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+                break
+        timing["training"] = time.perf_counter() - t0
+        self.trainer_ = trainer
+        notes: list[str] = []
+        if not trainer.converged:
+            notes.append(f"not converged after {trainer.epoch} epochs: Approach II uses the "
+                         f"last {settings.ensemble_epochs} epochs")
+        self._say(f"training: {trainer.epoch} epochs in {timing['training']:.1f} s, "
+                  f"converged at epoch {trainer.monitor.converged_at}")
+
+        # --- Approach I and II
+        t0 = time.perf_counter()
+        samples_I = trainer.sample(self.n_samples)
+        if len(trainer.ensemble):
+            samples_II = trainer.ensemble.samples
+        else:
+            samples_II = np.array(trainer.history["theta"][-settings.ensemble_epochs:])
+        summ_I = normal_summary(samples_I, names, ess=False)
+        summ_II = normal_summary(samples_II, names)
+        timing["approach_I_II"] = time.perf_counter() - t0
+
+        # --- Approach III: simulate every candidate in one batch, keep the best match
+        from .refine import displacement_mse, output_error, refine
+
+        t0 = time.perf_counter()
+        cand = samples_II[-self.n_candidates:]
+        mse = displacement_mse(st, cand, train, proc)
+        theta_III = cand[int(np.argmin(mse))]
+        timing["approach_III"] = time.perf_counter() - t0
+
+        # --- best: output-error refinement from Approach III
+        best, best_std = theta_III.copy(), None
+        t0 = time.perf_counter()
+        if self.refine:
+            res = refine(st, theta_III, train, proc)
+            c_ref = output_error(st, np.stack([theta_III, res.theta]), train, proc)
+            if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
+                best, best_std = res.theta, res.std
+            else:
+                notes.append(f"refinement did not improve on Approach III ({res.message})")
+        timing["refine"] = time.perf_counter() - t0
+
+        # --- metrics on training and (held-out) validation records
+        t0 = time.perf_counter()
+        ests = {"approach_I": samples_I.mean(0), "approach_II": samples_II.mean(0),
+                "approach_III": theta_III, "best": best}
+        baselines: dict[str, dict[str, float]] = {}
+        if self.baselines:
+            baselines = self._baselines(timing)
+            for bname, vals in baselines.items():
+                try:
+                    ests[bname] = st.vector(vals)
+                except KeyError:
+                    pass
+        metrics = self._metrics(ests, train, val, proc)
+        timing["metrics"] = time.perf_counter() - t0
+        timing["total"] = time.perf_counter() - t_all
+        self.result_ = Identification(
+            st, summ_I, summ_II, theta_III, best, best_std, samples_I, samples_II,
+            trainer.history, trainer.monitor.converged_at, trainer.epoch,
+            trainer.discriminator_scores(), metrics, timing, baselines, proc, notes)
+        return self
+
+    def _baselines(self, timing: dict[str, float]) -> dict[str, dict[str, float]]:
+        from . import baselines as bl
+
+        out: dict[str, dict[str, float]] = {}
+        for name in ("least_squares", "sindy"):
+            t0 = time.perf_counter()
+            try:
+                out[name] = getattr(bl, name)(self.structure, self.train_states_)
+            except Exception as exc:  # noqa: BLE001 - a failed baseline must not sink the run
+                self._say(f"baseline {name} failed: {exc}")
+                continue
+            timing[f"baseline_{name}"] = time.perf_counter() - t0
+        return out
+
+    def _metrics(self, ests: dict[str, np.ndarray], train: Sequence[Recording],
+                 val: Sequence[Recording], proc: Processing) -> dict[str, Any]:
+        from .refine import displacement_mse, output_error
+
+        names = list(ests)
+        thetas = np.stack([ests[n] for n in names])
+        out: dict[str, Any] = {"units": {"disp_mse_mm2": "mm^2", "output_error": "normalised MSE"}}
+        for split, recs in (("train", train), ("validation", val)):
+            if not recs:
+                continue
+            mse = displacement_mse(self.structure, thetas, recs, proc)
+            oe = output_error(self.structure, thetas, recs, proc)
+            out[split] = {n: {"disp_mse_mm2": float(m * 1e6), "output_error": float(o)}
+                          for n, m, o in zip(names, mse, oe)}
+        return out

@@ -1,0 +1,342 @@
+"""SIVA training: the adversarial loop of paper Sec. 2.4, one epoch at a time.
+
+``SivaTrainer`` is the stateful engine behind both ``Siva.fit`` (train until converged,
+then harvest Approach II) and the service (train forever as records arrive).  Choices
+where the paper is vague, each measured in ``benchmarks/bench_siva_choices.py``:
+
+* Discriminator input: a *(state, acceleration)* sample of a validation record,
+  ``[q/sq, v/sv, a/sa]`` per DOF.  Real: the measured acceleration; fake: the model's
+  acceleration at the same measured state.  A discriminator on accelerations alone
+  compares only their histograms, which a wrong model can match; conditioned on the state
+  it judges the equation of motion itself.  (``disc_input="acc"`` gives the other choice.)
+* MSE on accelerations normalised per DOF by the training RMS, so gamma means the same
+  for any units; gamma = 10 by default (the MSE term drives identification, the
+  adversarial term validates and regularises).
+* One epoch = ceil(N_train / batch) steps; each step draws ``batch`` training samples,
+  ``batch`` validation samples and ``batch`` noise vectors (one parameter set per sample).
+* The per-epoch sample for Approach II is the mean generator output over the epoch's
+  last batch.
+* Learning rate: the paper's 1e-4 throughout (``paper()``), or 1e-3 until convergence
+  and 1e-4 for the Approach II harvest (``fast()``): 10x fewer epochs to converge, the
+  same small per-epoch jitter afterwards.
+* Initialisation: the exponent e0 of each parameter from its scale hint, else from the
+  order of magnitude of an equation-error least-squares guess; mantissa starts at 1
+  (``init="magnitude"``).  ``init="ls"`` starts at the least-squares value itself.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .convergence import ConvergenceMonitor
+from .ensemble import Ensemble
+from .networks import LN4, Discriminator, ParameterGenerator
+from .processing import States
+from .structure import Structure
+
+
+@dataclass
+class SivaSettings:
+    """Hyper-parameters; ``paper()`` gives the paper's defaults."""
+
+    batch_size: int = 300
+    lr: float = 1e-4
+    lr_d: float | None = None  # discriminator learning rate (None: same as lr)
+    lr_converged: float | None = None  # learning rate once converged (None: unchanged)
+    gamma: float = 10.0
+    latent_dim: int = 16
+    seed: int = 42
+    disc_input: str = "state_acc"  # or "acc"
+    scientific: bool = True
+    init: str = "magnitude"  # or "ls" or "scale"
+    max_epochs: int = 1000
+    ensemble_epochs: int = 200  # Approach II samples harvested after convergence
+    ensemble_maxlen: int | None = 400  # running-ensemble bound for the service
+    conv_window: int = 20
+    conv_rel_tol: float = 2e-3
+    conv_min_epochs: int = 40
+    steps_per_epoch: int | None = None  # None: ceil(N_train / batch_size)
+    threads: int = 1
+
+    @classmethod
+    def paper(cls, **kw: Any) -> "SivaSettings":
+        """The paper: Adam 1e-4, batch 300, seed 42, 1000 epochs, Approach II from epoch 400."""
+        base = dict(batch_size=300, lr=1e-4, seed=42, max_epochs=1000, ensemble_epochs=600,
+                    conv_min_epochs=400)
+        base.update(kw)
+        return cls(**base)
+
+    @classmethod
+    def fast(cls, **kw: Any) -> "SivaSettings":
+        """Defaults of this project: the paper's networks and optimiser, a larger learning
+        rate, automatic convergence and a shorter Approach II harvest."""
+        base = dict(lr=1e-3, lr_converged=1e-4, max_epochs=600, ensemble_epochs=150)
+        base.update(kw)
+        return cls(**base)
+
+
+@dataclass
+class EpochLog:
+    epoch: int
+    loss_d: float
+    loss_adv: float
+    loss_mse: float
+    theta: np.ndarray
+    converged: bool
+
+
+@dataclass
+class _Pool:
+    """Samples of several records stacked as torch tensors, with per-record offsets."""
+
+    q: torch.Tensor
+    v: torch.Tensor
+    a: torch.Tensor
+    f: torch.Tensor
+    names: list[str]
+    bounds: list[tuple[int, int]] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, states: Sequence[States]) -> "_Pool":
+        cat = lambda attr: torch.from_numpy(np.concatenate([getattr(s, attr) for s in states]))
+        bounds, start = [], 0
+        for s in states:
+            bounds.append((start, start + len(s)))
+            start += len(s)
+        return cls(cat("q"), cat("v"), cat("a"), cat("f"), [s.name for s in states], bounds)
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+
+class SivaTrainer:
+    """The SIVA adversarial loop, resumable and warm-startable (``set_data`` any time)."""
+
+    def __init__(self, structure: Structure, settings: SivaSettings | None = None) -> None:
+        self.structure = structure
+        self.settings = settings or SivaSettings.fast()
+        s = self.settings
+        n = len(structure.free)
+        if n == 0:
+            raise ValueError("the model has no free parameters to identify")
+        torch.set_num_threads(max(1, s.threads))
+        with torch.random.fork_rng():
+            torch.manual_seed(s.seed)
+            self.generator = ParameterGenerator(n, s.latent_dim, scientific=s.scientific)
+            n_in = structure.n_dof * (3 if s.disc_input == "state_acc" else 1)
+            self.discriminator = Discriminator(n_in)
+        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=s.lr, foreach=True)
+        self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=s.lr_d or s.lr,
+                                      foreach=True)
+        self.rng = torch.Generator().manual_seed(s.seed)
+        self.epoch = 0
+        self.initialised = False
+        self.history: dict[str, list] = {"loss_d": [], "loss_adv": [], "loss_mse": [], "theta": []}
+        self.monitor = ConvergenceMonitor(window=s.conv_window, rel_tol=s.conv_rel_tol,
+                                          min_epochs=s.conv_min_epochs)
+        self.ensemble = Ensemble(maxlen=s.ensemble_maxlen)
+        self.train: _Pool | None = None
+        self.val: _Pool | None = None
+        self._scale: dict[str, torch.Tensor] = {}
+
+    # ------------------------------------------------------------------ data
+    def set_data(self, train: Sequence[States], val: Sequence[States]) -> None:
+        """Use these records from now on; networks and optimiser state are kept."""
+        if not train:
+            raise ValueError("SIVA needs at least one training record")
+        self.train = _Pool.of(train)
+        self.val = _Pool.of(val) if val else None
+        ref = self.train
+        rms = lambda x: x.pow(2).mean(0).sqrt().clamp_min(1e-12)
+        self._scale = {"q": rms(ref.q), "v": rms(ref.v), "a": rms(ref.a)}
+        if not self.initialised:
+            self._initialise(train)
+
+    def _initialise(self, train: Sequence[States]) -> None:
+        s = self.structure
+        guess = least_squares_guess(s, train)
+        hints = s.scales()
+        values = torch.ones(len(s.free), dtype=torch.float64)
+        exps = torch.zeros(len(s.free), dtype=torch.float64)
+        for k, p in enumerate(s.free):
+            g = guess.get(p)
+            mag = hints[p] if hints[p] is not None else (abs(g) if g and math.isfinite(g) else 1.0)
+            exps[k] = math.floor(math.log10(mag))
+            if self.settings.init == "ls" and g is not None and math.isfinite(g):
+                values[k] = g
+            else:
+                values[k] = 10.0 ** exps[k]
+        self.generator.set_reference(values, exps)
+        self.initial_guess_ = guess
+        self.initialised = True
+
+    # ------------------------------------------------------------------ features
+    def _features(self, q: torch.Tensor, v: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        sa = a / self._scale["a"]
+        if self.settings.disc_input == "acc":
+            return sa.float()
+        return torch.cat([q / self._scale["q"], v / self._scale["v"], sa], dim=-1).float()
+
+    def _noise(self, n: int) -> torch.Tensor:
+        return torch.randn(n, self.settings.latent_dim, generator=self.rng)
+
+    def _batch(self, pool: _Pool, n: int) -> tuple[torch.Tensor, ...]:
+        idx = torch.randint(0, len(pool), (n,), generator=self.rng)
+        return pool.q[idx], pool.v[idx], pool.a[idx], pool.f[idx]
+
+    # ------------------------------------------------------------------ training
+    def run_epoch(self) -> EpochLog:
+        """One epoch of alternating D and P updates (paper eqs. 2 and 4)."""
+        if self.train is None:
+            raise RuntimeError("set_data() first")
+        s = self.settings
+        B = s.batch_size
+        steps = s.steps_per_epoch or max(1, math.ceil(len(self.train) / B))
+        val = self.val if self.val is not None else self.train
+        sa = self._scale["a"]
+        acc = self.structure.accelerations
+        sums = np.zeros(3)
+        theta = None
+        for _ in range(steps):
+            qt, vt, at, ft = self._batch(self.train, B)
+            qv, vv, av, fv = self._batch(val, B)
+            theta = self.generator(self._noise(B))
+            # discriminator step: real validation accelerations vs the model's at the same states
+            fake_val = acc(theta, qv, vv, fv)
+            real_logit = self.discriminator(self._features(qv, vv, av))
+            fake_logit = self.discriminator(self._features(qv, vv, fake_val.detach()))
+            loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
+                      + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+            self.opt_d.zero_grad(set_to_none=True)
+            loss_d.backward()
+            self.opt_d.step()
+            # generator step: fool the updated D on validation, match training accelerations (eq. 4)
+            logit = self.discriminator(self._features(qv, vv, fake_val))
+            loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+            fake_tr = acc(theta, qt, vt, ft)
+            loss_mse = ((fake_tr - at) / sa).pow(2).mean()
+            loss_p = loss_adv + s.gamma * loss_mse
+            self.opt_g.zero_grad(set_to_none=True)
+            loss_p.backward()
+            self.opt_g.step()
+            sums += (loss_d.item(), loss_adv.item(), loss_mse.item())
+        sums /= steps
+        theta_epoch = theta.detach().mean(0).numpy()
+        e = self.epoch
+        self.epoch += 1
+        h = self.history
+        h["loss_d"].append(float(sums[0]))
+        h["loss_adv"].append(float(sums[1]))
+        h["loss_mse"].append(float(sums[2]))
+        h["theta"].append(theta_epoch)
+        was = self.monitor.converged
+        conv = self.monitor.update(e, theta_epoch)
+        if conv and was:
+            self.ensemble.add(theta_epoch, e)
+        elif conv and s.lr_converged is not None:
+            self._set_lr(s.lr_converged)
+        return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    def _set_lr(self, lr: float) -> None:
+        for opt in (self.opt_g, self.opt_d):
+            for group in opt.param_groups:
+                group["lr"] = lr
+
+    @property
+    def converged(self) -> bool:
+        return self.monitor.converged
+
+    # ------------------------------------------------------------------ read-outs
+    @torch.no_grad()
+    def sample(self, n: int = 1000, seed: int | None = None) -> np.ndarray:
+        """Approach I: n parameter sets from the trained generator, (n, n_free)."""
+        g = torch.Generator().manual_seed(self.settings.seed if seed is None else seed)
+        z = torch.randn(n, self.settings.latent_dim, generator=g)
+        return self.generator(z).numpy()
+
+    @torch.no_grad()
+    def discriminator_scores(self, n_eval: int = 2000) -> dict[str, Any]:
+        """D on each validation record: mean D(real), D(fake) and the BCE loss vs ln 4."""
+        pool = self.val if self.val is not None else self.train
+        if pool is None:
+            return {}
+        theta = torch.from_numpy(self.sample(1, seed=self.settings.seed + 1)[0])
+        # the generator's central estimate: mean over a fixed noise batch
+        theta = torch.from_numpy(self.sample(256, seed=self.settings.seed + 1).mean(0))
+        records: dict[str, dict[str, float]] = {}
+        tot_real, tot_fake, count = 0.0, 0.0, 0
+        for name, (i0, i1) in zip(pool.names, pool.bounds):
+            step = max(1, (i1 - i0) // n_eval)
+            sl = slice(i0, i1, step)
+            q, v, a, f = pool.q[sl], pool.v[sl], pool.a[sl], pool.f[sl]
+            fake = self.structure.accelerations(theta, q, v, f)
+            pr = self.discriminator.prob(self._features(q, v, a)).clamp(1e-7, 1 - 1e-7)
+            pf = self.discriminator.prob(self._features(q, v, fake)).clamp(1e-7, 1 - 1e-7)
+            lr_, lf_ = -pr.log().mean().item(), -(1 - pf).log().mean().item()
+            records[name] = {"d_real": pr.mean().item(), "d_fake": pf.mean().item(),
+                             "loss_d": lr_ + lf_}
+            tot_real += lr_ * len(pr)
+            tot_fake += lf_ * len(pf)
+            count += len(pr)
+        loss_d = (tot_real + tot_fake) / max(count, 1)
+        return {"loss_d": loss_d, "ln4": LN4, "ln4_distance": abs(loss_d - LN4), "records": records}
+
+    # ------------------------------------------------------------------ checkpoint
+    def state_dict(self) -> dict[str, Any]:
+        return {"settings": asdict(self.settings), "epoch": self.epoch, "initialised": self.initialised,
+                "generator": self.generator.state_dict(), "discriminator": self.discriminator.state_dict(),
+                "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict(),
+                "rng": self.rng.get_state(), "monitor": self.monitor.state_dict(),
+                "ensemble": self.ensemble.state_dict(),
+                "history": {k: [np.asarray(x).tolist() for x in v] for k, v in self.history.items()},
+                "initial_guess": getattr(self, "initial_guess_", {})}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        self.epoch = d["epoch"]
+        self.initialised = d["initialised"]
+        self.generator.load_state_dict(d["generator"])
+        self.discriminator.load_state_dict(d["discriminator"])
+        self.opt_g.load_state_dict(d["opt_g"])
+        self.opt_d.load_state_dict(d["opt_d"])
+        self.rng.set_state(d["rng"])
+        self.monitor.load_state_dict(d["monitor"])
+        self.ensemble.load_state_dict(d["ensemble"])
+        self.history = {k: list(v) for k, v in d["history"].items()}
+        self.history["theta"] = [np.asarray(t) for t in self.history["theta"]]
+        self.initial_guess_ = d.get("initial_guess", {})
+
+
+def least_squares_guess(structure: Structure, states: Sequence[States]) -> dict[str, float]:
+    """Equation-error least squares for the linear parameters (nonlinear ones at their
+    scale hint or 1): a first guess for orders of magnitude, not an estimate."""
+    free = structure.free
+    lin = structure.linear_parameters()
+    base = np.array([structure.parameters[p].scale or 1.0 for p in free])
+    rows, rhs = [], []
+    for st in states:
+        step = max(1, len(st) // 5000)
+        q, v, a, f = st.q[::step], st.v[::step], st.a[::step], st.f[::step]
+        th0 = base.copy()
+        th0[[free.index(p) for p in lin]] = 0.0
+        a0 = structure.accelerations(th0, q, v, f)
+        cols = []
+        for p in lin:
+            th = th0.copy()
+            th[free.index(p)] = 1.0
+            cols.append((structure.accelerations(th, q, v, f) - a0).reshape(-1))
+        if not cols:
+            return {}
+        w = 1.0 / np.maximum(np.sqrt((a ** 2).mean(0)), 1e-12)
+        rows.append(np.stack(cols, axis=1) * np.tile(w, len(q))[:, None])
+        rhs.append(((a - a0) * w).reshape(-1))
+    A, b = np.concatenate(rows), np.concatenate(rhs)
+    norm = np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+    sol = np.linalg.lstsq(A / norm, b, rcond=None)[0] / norm
+    out = {p: float(base[free.index(p)]) for p in free if p not in lin}
+    out.update({p: float(x) for p, x in zip(lin, sol)})
+    return out
