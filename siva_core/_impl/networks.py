@@ -31,8 +31,8 @@ class ParameterGenerator(nn.Module):
         for h in hidden:
             layers += [nn.Linear(width, h), nn.LeakyReLU(SLOPE)]
             width = h
-        self.head = nn.Linear(width, 2 * n_params if scientific else n_params)
         self.body = nn.Sequential(*layers)
+        self.head = nn.Linear(width, 2 * n_params if scientific else n_params)
         # start at the reference point: small output weights, zero bias
         with torch.no_grad():
             self.head.weight.mul_(0.1)

@@ -6,24 +6,42 @@ after each integration, decimation, and a start just after the impact.  Every st
 configurable and can be switched off.  What a recording gives is used as given; only what
 is missing is derived (integration upward from acc, differentiation downward from disp).
 
-The chain biases what it produces (filters remove signal along with noise), so the final
-estimate is refined by output error through the *same* chain (see ``refine``): use
-:meth:`Processing.filter_like` to pass simulated signals through it.
+The chain biases what it produces (filters remove signal along with noise, and the
+paper's chain filters q, v, a and F differently, so M a = -f(q, v) + F no longer holds
+even for a linear model).  Two remedies live here:
+
+* ``consistent=True`` passes every signal (q, v, a of every DOF and the force) through the
+  same total filter, so the equation of motion still holds exactly for the linear terms.
+* :meth:`Processing.apply_simulated` / :func:`simulated_recording` pass a *simulated*
+  response through exactly the same chain as a measured one, for output-error refinement.
+
+:meth:`Processing.auto` picks a chain from the data (the rule is in its docstring and in
+``docs/formats.md``); :meth:`Processing.paper` is the paper's chain, kept for comparison.
 """
 from __future__ import annotations
 
+import math
+import warnings
+from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
-from scipy import signal
+from scipy import integrate, signal
 
 from .recording import Recording
+
+# A filter in the ledger: ("band", lo, hi) | ("high", fc) | ("low", fc) | ("notch", f0, q)
+FilterKey = tuple
 
 
 @dataclass
 class States:
-    """Processed states of one record, arrays of shape (T, n_dof)."""
+    """Processed states of one record, arrays of shape (T, n_dof).
+
+    Arrays may carry extra leading axes (e.g. (B, T, n_dof) for a batch of simulations
+    processed by :meth:`Processing.apply_simulated`); ``t`` is always (T,).
+    """
 
     t: np.ndarray
     q: np.ndarray
@@ -39,8 +57,24 @@ class States:
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
 
+    @property
+    def fs(self) -> float:
+        return 1.0 / self.dt
+
     def __len__(self) -> int:
         return len(self.t)
+
+
+@dataclass
+class SpectrumSummary:
+    """What :meth:`Processing.auto` read off the spectra (kept for reports and tests)."""
+
+    peaks_hz: list[float]
+    lines_hz: list[float]  # stationary narrow lines (hum, tones): treated as noise
+    first_hz: float | None  # lowest significant peak within 20 dB of the strongest
+    top_hz: float | None
+    resolution_hz: float
+    noise_hz: float | None = None  # high-pass at which integrated noise is 3 % of signal
 
 
 @dataclass
@@ -51,10 +85,24 @@ class Processing:
         accelerations (the paper: 4-50 Hz, 3rd order).
     highpass: Hz, zero-phase high-pass after each integration (the paper: 3 Hz).
     lowpass_diff: Hz, zero-phase low-pass before differentiating displacement/velocity.
+    notch: frequencies [Hz] of stationary lines (mains hum) removed from measured signals
+        by zero-phase notches of quality ``notch_q``.
     decimate_to: target sampling rate in Hz (the paper: 256 Hz), zero-phase anti-aliasing.
     start: "impact" keeps the record from just after the force pulse ends (free response,
         the paper's LO-NO choice); "start" keeps it whole; a float is a time in seconds.
     trim: seconds cut at both ends after filtering (filter edge transients).
+    gate_force: zero the force outside its pulse(s) (|F| above ``impact_threshold`` of its
+        peak, widened by ``gate_margin`` s): between hits a hammer applies no force, the
+        channel only carries noise that would enter the equation of motion.  With
+        ``start="impact"`` and no ``consistent``, the kept force is then exactly zero (the
+        paper's F = 0 in training).
+    consistent: give every signal, force included, the same total filter (each one is
+        topped up with the filters the others received), so that the equation of motion
+        holds for linear terms after processing.
+    diff_accuracy: order of the central-difference stencil (2, 4 or 6); high orders keep
+        the derivative's gain error small up to a good fraction of Nyquist.
+    integrator: "trapezoid" (the paper's cumtrapz) or "simpson" (cumulative Simpson: about
+        3x smaller error across a sharp impact pulse, whose error becomes velocity drift).
     """
 
     bandpass: tuple[float, float] | None = None
@@ -65,12 +113,25 @@ class Processing:
     trim: float = 0.0
     order: int = 3
     impact_threshold: float = 0.02  # fraction of |F|max below which the pulse has ended
+    notch: tuple[float, ...] = ()
+    notch_q: float = 30.0
+    gate_force: bool = False
+    gate_margin: float = 0.002
+    consistent: bool = False
+    diff_accuracy: int = 6
+    integrator: str = "trapezoid"
+    summary: SpectrumSummary | None = field(default=None, compare=False, repr=False)
 
+    # ------------------------------------------------------------------ presets
     @classmethod
-    def paper(cls, **kw) -> "Processing":
-        """The paper's LO-NO chain: band-pass 4-50 Hz, high-pass 3 Hz, 256 Hz, after impact."""
-        base = dict(bandpass=(4.0, 50.0), highpass=3.0, decimate_to=256.0, start="impact",
-                    trim=0.0)
+    def paper(cls, **kw: Any) -> "Processing":
+        """The paper's LO-NO chain: band-pass 4-50 Hz, high-pass 3 Hz, 256 Hz, after impact.
+
+        The force is gated to its pulse, so training sees F = 0 after the impact as in the
+        paper; nothing makes the filters consistent (that is the paper's bias).
+        """
+        base: dict[str, Any] = dict(bandpass=(4.0, 50.0), highpass=3.0, decimate_to=256.0,
+                                    start="impact", trim=0.0, gate_force=True)
         base.update(kw)
         return cls(**base)
 
@@ -78,74 +139,245 @@ class Processing:
     def none(cls) -> "Processing":
         return cls()
 
+    @classmethod
+    def auto(cls, recordings: Recording | Iterable[Recording], dofs: Sequence[str],
+             **overrides: Any) -> "Processing":
+        """A chain chosen from the data, for records never seen before.
+
+        Rule (also in docs/formats.md):
+
+        1. Every record gives disp, vel and acc for every DOF: nothing is done (the states
+           are used as given, whole record, force as measured).
+        2. Otherwise the measured spectra set the band.  For each DOF the most derivative
+           quantity measured (acc, else vel, else disp) is analysed over the free response
+           (after the force pulse when the force is impulsive): Welch PSD with ~0.25 Hz
+           resolution (coarser for short records), noise floor N = median PSD.
+           *Stationary lines* (narrow peaks whose level stays within a factor 4 between the
+           first and last third of a decaying record: mains hum, tones; in records that do
+           not decay, narrow peaks at multiples of 50/60 Hz) are noise.  Every other local
+           maximum 20 dB above N (and 6 dB above its surroundings) is a *significant peak*.
+           - high-pass ``fh``: as low as the noise allows, within [f1/8, f1/2] where f1 is
+             the lowest significant peak within 20 dB of the strongest one.  Integrating p times turns the white floor N into
+             N/(2 pi f)^(2p); ``fh`` is where that integrated noise reaches 3 % of the RMS of
+             the integrated signal: fh = (N / ((2p-1) (2 pi)^(2p) 0.03^2 S))^(1/(2p-1)),
+             S = sum of (P - N)/(2 pi f)^(2p) df.  Lower is not better: a high-pass also
+             removes the response's own slow content, which the nonlinear terms feel.
+             At least 2 / record duration, so integration drift cannot build up.
+           - low-pass ``fl`` = 2 x the highest frequency still 20 dB above N (harmonics
+             included), at most 0.8 x Nyquist.
+           - stationary lines in (fh, fl) get zero-phase notches (Q = 30) rather than a
+             low-pass below them, which would cut the nonlinear harmonics above the hum.
+           acc-only DOFs: band-pass (fh, fl), integrate twice (Simpson) with high-pass fh.
+           disp-only DOFs: low-pass fl then 6th-order central differences.
+        3. All signals, force included, get the same total filter (``consistent``), and an
+           impulsive force (above 2 % of its peak for < 10 % of the record) is gated to
+           its pulse; the record then starts just after the impact.
+        4. Decimation by the largest integer factor keeping fs >= 4 fl (none below 2).
+
+        ``overrides`` replace any chosen setting.  The analysis is kept in ``summary``.
+        """
+        recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
+        if not recs:
+            raise ValueError("Processing.auto needs at least one recording")
+        dofs = list(dofs)
+        if all(rec.get(qty, d) is not None for rec in recs for d in dofs
+               for qty in ("disp", "vel", "acc")):
+            return cls(**overrides)
+        needs_int = needs_diff = has_acc = False
+        for rec in recs:
+            for d in dofs:
+                dq, dv, da = (rec.get(x, d) for x in ("disp", "vel", "acc"))
+                if dq is None or (dv is None and da is not None):
+                    needs_int = True
+                if da is None:
+                    needs_diff = True
+                has_acc = has_acc or da is not None
+        any_force = any(rec.has_force(dofs) for rec in recs)
+        impulsive = any_force and all(_impulsive(rec, dofs, 0.02) for rec in recs
+                                      if rec.has_force(dofs))
+        probe = cls(start="impact" if impulsive else "start")
+        summary = _analyse_spectra(recs, dofs, probe)
+        fs_min = min(rec.fs for rec in recs)
+        nyq = fs_min / 2
+        duration = min(float(rec.time[-1] - rec.time[0]) for rec in recs)
+        if summary.first_hz is None:
+            warnings.warn("Processing.auto: no significant spectral peak found; "
+                          "using a wide band", stacklevel=2)
+            first, top = 40.0 / max(duration, 1e-9), 0.4 * nyq
+        else:
+            first, top = summary.first_hz, summary.top_hz or summary.first_hz
+        fh = min(max(summary.noise_hz or 0.0, first / 8.0), first / 2.0)
+        fh = max(fh, 2.0 / duration)
+        if fh > first / 2:
+            warnings.warn(f"Processing.auto: record too short ({duration:.3g} s) for a "
+                          f"high-pass well below the lowest peak ({first:.3g} Hz)",
+                          stacklevel=2)
+        fl = min(2.0 * max(top, first), 0.8 * nyq)
+        lines = tuple(x for x in summary.lines_hz if fh < x < fl)
+        k = int(fs_min // (4.0 * fl)) if fl > 0 else 1
+        settings: dict[str, Any] = dict(
+            bandpass=(fh, fl) if has_acc else None,
+            highpass=fh if needs_int else None,
+            lowpass_diff=fl if needs_diff else None,
+            notch=lines,
+            decimate_to=fs_min / k if k >= 2 else None,
+            start=probe.start,
+            gate_force=impulsive,
+            consistent=True,
+            integrator="simpson",
+            order=4,
+            trim=0.0,
+        )
+        settings.update(overrides)
+        out = cls(**settings)
+        out.summary = summary
+        return out
+
     # ------------------------------------------------------------------ filters
-    def _sos(self, kind: str, cut, fs: float):
+    def _sos(self, kind: str, cut: Any, fs: float) -> np.ndarray:
         nyq = fs / 2
         if kind == "band":
             lo, hi = cut
-            hi = min(hi, 0.95 * nyq)
+            if hi >= 0.95 * nyq:
+                return signal.butter(self.order, lo, btype="highpass", fs=fs, output="sos")
             return signal.butter(self.order, [lo, hi], btype="bandpass", fs=fs, output="sos")
         if kind == "high":
             return signal.butter(self.order, cut, btype="highpass", fs=fs, output="sos")
-        return signal.butter(self.order, min(cut, 0.95 * nyq), btype="lowpass", fs=fs, output="sos")
+        if kind == "notch":
+            f0, q = cut
+            b, a = signal.iirnotch(f0, q, fs=fs)
+            return signal.tf2sos(b, a)
+        return signal.butter(self.order, min(cut, 0.95 * nyq), btype="lowpass", fs=fs,
+                             output="sos")
 
-    def _filt(self, x: np.ndarray, kind: str, cut, fs: float) -> np.ndarray:
-        return signal.sosfiltfilt(self._sos(kind, cut, fs), x, axis=0)
+    def _filt(self, x: np.ndarray, kind: str, cut: Any, fs: float, axis: int = 0) -> np.ndarray:
+        return signal.sosfiltfilt(self._sos(kind, cut, fs), x, axis=axis)
 
-    def filter_acc(self, a: np.ndarray, fs: float) -> np.ndarray:
-        """The chain's treatment of a measured acceleration (band-pass when set)."""
-        return a if self.bandpass is None else self._filt(a, "band", self.bandpass, fs)
+    def _apply_key(self, x: np.ndarray, key: FilterKey, fs: float, axis: int) -> np.ndarray:
+        kind = key[0]
+        cut = key[1:] if kind in ("band", "notch") else key[1]
+        return self._filt(x, kind, cut, fs, axis)
 
-    def integrate(self, x: np.ndarray, fs: float, x0: np.ndarray | None = None) -> np.ndarray:
-        """Trapezoidal integral, then the zero-phase high-pass when set."""
+    def _acc_keys(self, fs: float) -> list[FilterKey]:
+        keys: list[FilterKey] = []
+        if self.bandpass is not None:
+            keys.append(("band", float(self.bandpass[0]), float(self.bandpass[1])))
+        keys.extend(("notch", float(f0), float(self.notch_q)) for f0 in self.notch
+                    if 0 < f0 < fs / 2)
+        return keys
+
+    def filter_acc(self, a: np.ndarray, fs: float, axis: int = 0) -> np.ndarray:
+        """The chain's treatment of a measured acceleration (band-pass and notches)."""
+        for key in self._acc_keys(fs):
+            a = self._apply_key(a, key, fs, axis)
+        return a
+
+    def integrate(self, x: np.ndarray, fs: float, x0: np.ndarray | None = None,
+                  axis: int = 0) -> np.ndarray:
+        """Cumulative integral from 0 (``integrator``), then the zero-phase high-pass."""
+        x = np.moveaxis(np.asarray(x, dtype=float), axis, 0)
         dt = 1.0 / fs
-        y = np.concatenate([np.zeros((1,) + x.shape[1:]),
-                            np.cumsum(0.5 * (x[1:] + x[:-1]) * dt, axis=0)])
+        if self.integrator == "simpson" and x.shape[0] >= 3:
+            y = integrate.cumulative_simpson(x, dx=dt, axis=0, initial=0.0)
+        elif self.integrator in ("trapezoid", "simpson"):
+            y = np.concatenate([np.zeros((1,) + x.shape[1:]),
+                                np.cumsum(0.5 * (x[1:] + x[:-1]) * dt, axis=0)])
+        else:
+            raise ValueError(f"integrator must be 'trapezoid' or 'simpson', "
+                             f"got {self.integrator!r}")
         if x0 is not None:
             y = y + x0
         if self.highpass is not None:
             y = self._filt(y, "high", self.highpass, fs)
-        return y
+        return np.moveaxis(y, 0, axis)
 
-    def differentiate(self, x: np.ndarray, fs: float) -> np.ndarray:
-        """Central-difference derivative after the optional zero-phase low-pass."""
+    def differentiate(self, x: np.ndarray, fs: float, axis: int = 0) -> np.ndarray:
+        """Central-difference derivative (``diff_accuracy``) after the optional low-pass."""
         if self.lowpass_diff is not None:
-            x = self._filt(x, "low", self.lowpass_diff, fs)
-        return np.gradient(x, 1.0 / fs, axis=0)
+            x = self._filt(x, "low", self.lowpass_diff, fs, axis)
+        return central_difference(x, 1.0 / fs, axis=axis, accuracy=self.diff_accuracy)
 
     # ------------------------------------------------------------------ chain
-    def derive(self, rec: Recording, dofs: Sequence[str]) -> tuple[np.ndarray, ...]:
-        """Full-rate (q, v, a, F) arrays, each (T, n_dof), before decimation/start."""
-        fs = rec.fs
-        T = len(rec)
-        n = len(dofs)
-        q = np.zeros((T, n))
-        v = np.zeros((T, n))
-        a = np.zeros((T, n))
-        for k, d in enumerate(dofs):
-            dq, dv, da = rec.get("disp", d), rec.get("vel", d), rec.get("acc", d)
+    def _derive_arrays(self, fs: float, dofs: Sequence[str],
+                       given: Callable[[str, str], np.ndarray | None],
+                       force: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Core: per DOF derive what is missing; arrays have time on the last axis.
+
+        Every derived signal records the filters it went through (its ledger); with
+        ``consistent`` each signal is then topped up to the union of all ledgers.
+        """
+        qs, vs, as_ = [], [], []
+        ledgers: list[Counter] = []
+        acc_keys = self._acc_keys(fs)
+        high = [("high", float(self.highpass))] if self.highpass is not None else []
+        low = [("low", float(self.lowpass_diff))] if self.lowpass_diff is not None else []
+        for d in dofs:
+            dq, dv, da = given("disp", d), given("vel", d), given("acc", d)
+            if dq is None and dv is None and da is None:
+                raise ValueError(f"DOF {d!r} has no disp, vel or acc")
+            la = lv = lq = Counter()
+            a = v = q = None
             if da is not None:
-                a[:, k] = self.filter_acc(da, fs)
+                a = self.filter_acc(np.asarray(da, float), fs, axis=-1)
+                la = Counter(acc_keys)
             if dv is not None:
-                v[:, k] = dv
-            elif da is not None:
-                v[:, k] = self.integrate(a[:, k], fs)
-            elif dq is not None:
-                v[:, k] = self.differentiate(dq, fs)
-            if dq is not None:
-                q[:, k] = dq
+                v = np.asarray(dv, float)
+            elif a is not None:
+                v, lv = self.integrate(a, fs, axis=-1), la + Counter(high)
             else:
-                q[:, k] = self.integrate(v[:, k], fs)
-            if da is None:
-                a[:, k] = self.differentiate(v[:, k], fs)
-        f = rec.stack("force", dofs, fill=0.0)
+                v, lv = self.differentiate(np.asarray(dq, float), fs, axis=-1), Counter(low)
+            if dq is not None:
+                q = np.asarray(dq, float)
+            else:
+                q, lq = self.integrate(v, fs, axis=-1), lv + Counter(high)
+            if a is None:
+                a, la = self.differentiate(v, fs, axis=-1), lv + Counter(low)
+            qs.append(q)
+            vs.append(v)
+            as_.append(a)
+            ledgers.extend([lq, lv, la])
+        f = np.asarray(force, float)
+        if self.consistent:
+            target: Counter = Counter()
+            for led in ledgers:
+                target |= led
+            for k in range(len(dofs)):
+                for lst, led in ((qs, ledgers[3 * k]), (vs, ledgers[3 * k + 1]),
+                                 (as_, ledgers[3 * k + 2])):
+                    lst[k] = self._top_up(lst[k], target - led, fs, -1)
+            f = self._top_up(f, target, fs, 0)
+        shape = np.broadcast_shapes(*(x.shape for x in qs + vs + as_))
+        q, v, a = (np.stack([np.broadcast_to(x, shape) for x in lst], axis=-1)
+                   for lst in (qs, vs, as_))
         return q, v, a, f
 
+    def _top_up(self, x: np.ndarray, missing: Counter, fs: float, axis: int) -> np.ndarray:
+        for key in sorted(missing, key=repr):
+            for _ in range(missing[key]):
+                x = self._apply_key(x, key, fs, axis)
+        return x
+
+    def _force(self, rec: Recording, dofs: Sequence[str]) -> np.ndarray:
+        """(T, n_dof) force as the chain uses it (gated when ``gate_force``)."""
+        f = rec.stack("force", dofs, fill=0.0)
+        if self.gate_force and np.any(f):
+            gate = _pulse_gate(np.abs(f).max(axis=1), self.impact_threshold,
+                               int(round(self.gate_margin * rec.fs)))
+            f = f * gate[:, None]
+        return f
+
+    def derive(self, rec: Recording, dofs: Sequence[str]) -> tuple[np.ndarray, ...]:
+        """Full-rate (q, v, a, F) arrays, each (T, n_dof), before decimation/start."""
+        return self._derive_arrays(rec.fs, dofs, rec.get, self._force(rec, dofs))
+
     def start_index(self, rec: Recording, dofs: Sequence[str]) -> int:
+        """Index of the first kept sample: 0, a time, or just after the force pulse."""
         if self.start == "start":
             return 0
         if isinstance(self.start, (int, float)):
             return int(np.searchsorted(rec.time, rec.time[0] + float(self.start)))
+        if self.start != "impact":
+            raise ValueError(f"start must be 'start', 'impact' or seconds, got {self.start!r}")
         f = rec.stack("force", dofs, fill=0.0)
         mag = np.abs(f).max(axis=1)
         if mag.max() <= 0:
@@ -155,25 +387,245 @@ class Processing:
         return peak + (int(after[0]) if after.size else 0)
 
     def decimation(self, fs: float) -> int:
+        """Integer decimation factor reaching ``decimate_to`` (1 when off or above fs)."""
         if self.decimate_to is None or self.decimate_to >= fs:
             return 1
         return max(1, int(round(fs / self.decimate_to)))
 
-    def apply(self, rec: Recording, dofs: Sequence[str]) -> States:
-        """Run the chain on one recording."""
-        q, v, a, f = self.derive(rec, dofs)
+    def _finish(self, rec: Recording, dofs: Sequence[str], q: np.ndarray, v: np.ndarray,
+                a: np.ndarray, f: np.ndarray) -> States:
+        """Decimate (zero-phase anti-aliasing) and cut to the kept window."""
         fs = rec.fs
         k = self.decimation(fs)
         if k > 1:
             # zero-phase anti-aliasing low-pass at 0.8 x the new Nyquist, then keep every k-th
             cut = 0.8 * fs / k / 2
-            q, v, a = (self._filt(x, "low", cut, fs) for x in (q, v, a))
+            q, v, a = (self._filt(x, "low", cut, fs, axis=-2) for x in (q, v, a))
+            if self.consistent:
+                f = self._filt(f, "low", cut, fs, axis=0)
         i0 = self.start_index(rec, dofs)
         i0 += int(round(self.trim * fs))
         i1 = len(rec) - int(round(self.trim * fs))
+        if i1 - i0 < 2 * k:
+            raise ValueError(f"{rec.name}: nothing left after start/trim "
+                             f"(start index {i0}, end {i1})")
         sl = slice(i0, i1, k)
-        return States(rec.time[sl].copy(), q[sl].copy(), v[sl].copy(), a[sl].copy(),
-                      f[sl].copy(), rec.name, rec.has_force(dofs), i0, k)
+        return States(rec.time[sl].copy(), q[..., sl, :].copy(), v[..., sl, :].copy(),
+                      a[..., sl, :].copy(), f[sl].copy(), rec.name, rec.has_force(dofs), i0, k)
 
-    def with_(self, **kw) -> "Processing":
+    def apply(self, rec: Recording, dofs: Sequence[str]) -> States:
+        """Run the chain on one recording (measured or simulated, see simulated_recording)."""
+        q, v, a, f = self.derive(rec, dofs)
+        return self._finish(rec, dofs, q, v, a, f)
+
+    def apply_simulated(self, measured: Recording, dofs: Sequence[str], q: np.ndarray,
+                        v: np.ndarray, a: np.ndarray) -> States:
+        """Pass simulated states through exactly the chain ``measured`` goes through.
+
+        ``q``, ``v``, ``a``: (..., T, n_dof) on the measured time grid (leading axes, e.g.
+        a batch of parameter sets, are kept).  Only the quantities ``measured`` has per DOF
+        are taken from the simulation; the force, start index and decimation come from the
+        measured record, so the result lines up sample by sample with ``apply(measured)``.
+        """
+        sim = {"disp": np.asarray(q, float), "vel": np.asarray(v, float),
+               "acc": np.asarray(a, float)}
+        T = len(measured)
+        for name, x in sim.items():
+            if x.shape[-2:] != (T, len(dofs)):
+                raise ValueError(f"simulated {name} has shape {x.shape}, expected (..., {T}, "
+                                 f"{len(dofs)}) on the measured time grid")
+        index = {d: k for k, d in enumerate(dofs)}
+
+        def given(qty: str, d: str) -> np.ndarray | None:
+            if measured.get(qty, d) is None:
+                return None
+            return sim[qty][..., index[d]]
+
+        qq, vv, aa, f = self._derive_arrays(measured.fs, dofs, given,
+                                            self._force(measured, dofs))
+        return self._finish(measured, dofs, qq, vv, aa, f)
+
+    def with_(self, **kw: Any) -> "Processing":
         return replace(self, **kw)
+
+    def describe(self) -> str:
+        """One line saying what the chain does (for logs and reports)."""
+        parts = []
+        if self.bandpass:
+            parts.append(f"band-pass {self.bandpass[0]:.3g}-{self.bandpass[1]:.3g} Hz")
+        if self.notch:
+            parts.append("notch " + ", ".join(f"{x:.4g}" for x in self.notch) + " Hz")
+        if self.highpass:
+            parts.append(f"integrate + high-pass {self.highpass:.3g} Hz")
+        if self.lowpass_diff:
+            parts.append(f"low-pass {self.lowpass_diff:.3g} Hz + differentiate")
+        if self.decimate_to:
+            parts.append(f"decimate to {self.decimate_to:.4g} Hz")
+        if self.consistent:
+            parts.append("consistent filtering")
+        if self.gate_force:
+            parts.append("force gated to its pulse")
+        parts.append(f"start {self.start}")
+        return "; ".join(parts) if parts else "none"
+
+
+def simulated_recording(measured: Recording, dofs: Sequence[str], q: np.ndarray,
+                        v: np.ndarray, a: np.ndarray, *, name: str | None = None) -> Recording:
+    """A Recording of simulated (T, n_dof) states with the channels ``measured`` has.
+
+    The force channels are copied from ``measured`` (the simulation was driven by them), so
+    ``proc.apply(simulated_recording(...))`` gives states processed exactly like
+    ``proc.apply(measured)``: same derivations, filters, start and decimation.
+    """
+    sim = {"disp": np.asarray(q, float), "vel": np.asarray(v, float),
+           "acc": np.asarray(a, float)}
+    channels: dict[str, np.ndarray] = {}
+    for key, x in measured.channels.items():
+        qty, _, d = key.partition("_")
+        if qty == "force":
+            channels[key] = x.copy()
+        elif qty in sim and d in dofs:
+            channels[key] = sim[qty][:, list(dofs).index(d)].copy()
+    return Recording(measured.time.copy(), channels, name or f"{measured.name} (simulated)",
+                     {"simulated": True})
+
+
+def central_difference(x: np.ndarray, dt: float, axis: int = 0,
+                       accuracy: int = 6) -> np.ndarray:
+    """Derivative by a central stencil of the given order; 2nd-order one-sided at edges."""
+    x = np.asarray(x, dtype=float)
+    out = np.gradient(x, dt, axis=axis, edge_order=2) if x.shape[axis] > 2 else \
+        np.gradient(x, dt, axis=axis)
+    stencils = {2: [1 / 2], 4: [2 / 3, -1 / 12], 6: [3 / 4, -3 / 20, 1 / 60]}
+    if accuracy not in stencils:
+        raise ValueError(f"diff_accuracy must be 2, 4 or 6, got {accuracy}")
+    w = stencils[accuracy]
+    m = len(w)
+    n = x.shape[axis]
+    if accuracy == 2 or n <= 2 * m:
+        return out
+    xm = np.moveaxis(x, axis, 0)
+    om = np.moveaxis(out, axis, 0)
+    inner = np.zeros_like(xm[m:n - m])
+    for j, c in enumerate(w, start=1):
+        inner += c * (xm[m + j:n - m + j] - xm[m - j:n - m - j])
+    om[m:n - m] = inner / dt
+    return np.moveaxis(om, 0, axis)
+
+
+# ---------------------------------------------------------------------- helpers for auto
+def _pulse_gate(mag: np.ndarray, threshold: float, margin: int) -> np.ndarray:
+    """1 on samples within ``margin`` of |F| > threshold x peak, else 0."""
+    on = mag > threshold * mag.max()
+    if margin > 0 and on.any():
+        on = np.convolve(on.astype(float), np.ones(2 * margin + 1), mode="same") > 0
+    return on.astype(float)
+
+
+def _impulsive(rec: Recording, dofs: Sequence[str], threshold: float) -> bool:
+    """Is the force a short pulse (< 10 % of the record above ``threshold`` of its peak)?"""
+    f = rec.stack("force", dofs, fill=0.0)
+    mag = np.abs(f).max(axis=1)
+    if mag.max() <= 0:
+        return False
+    return float(np.mean(mag > threshold * mag.max())) < 0.10
+
+
+def _analyse_spectra(recs: Sequence[Recording], dofs: Sequence[str],
+                     probe: Processing, noise_tol: float = 0.03) -> SpectrumSummary:
+    """Significant peaks, stationary lines and the noise-limited high-pass (see auto)."""
+    peaks: list[float] = []
+    lines: list[float] = []
+    top: float | None = None
+    first: float | None = None
+    noise_hz: float | None = None
+    resolution = 0.0
+    for rec in recs:
+        i0 = probe.start_index(rec, dofs)
+        fs = rec.fs
+        for d in dofs:
+            measured = [(qty, rec.get(qty, d)) for qty in ("acc", "vel", "disp")
+                        if rec.get(qty, d) is not None]
+            if not measured:
+                continue
+            qty, x = measured[0]
+            x = np.asarray(x[i0:], float)
+            n = len(x)
+            if n < 32:
+                continue
+            nper = int(min(n, 2 ** math.ceil(math.log2(max(64.0, 4.0 * fs)))))
+            freq, P = signal.welch(x, fs=fs, nperseg=nper, detrend="linear")
+            df = float(freq[1] - freq[0])
+            resolution = max(resolution, df)
+            floor = float(np.median(P[1:]))
+            # 20 dB above the floor; at most 60 dB below the strongest line (noise-free data)
+            thr = max(100.0 * floor, 1e-6 * float(P.max()))
+            rec_lines = _stationary_lines(x, fs, nper, freq, P, thr)
+            fmin = max(4 * df, 2.0 / (n / fs))  # below: the record's own mean/trend
+            mask = freq >= fmin
+            for f0 in rec_lines:
+                mask &= np.abs(freq - f0) > 2.5 * df
+            logp = np.log10(np.maximum(P, 1e-300))
+            pk, _ = signal.find_peaks(np.where(mask, logp, logp.min()),
+                                      height=math.log10(thr), prominence=0.6)
+            peaks.extend(float(freq[p]) for p in pk)
+            # the lowest peak that carries the response (within 20 dB of the strongest)
+            strong = [float(freq[p]) for p in pk if P[p] >= 1e-2 * P[pk].max()]
+            if strong:
+                first = min(first or np.inf, strong[0])
+            above = np.flatnonzero(mask & (P > thr))
+            if above.size:
+                top = max(top or 0.0, float(freq[above[-1]]))
+            lines.extend(rec_lines)
+            # how many integrations turn this quantity into a displacement
+            p_int = {"acc": 2, "vel": 1, "disp": 0}[qty]
+            if p_int and strong:
+                band = mask & (freq >= 0.5 * strong[0])
+                w = (2 * np.pi * freq[band]) ** (2 * p_int)
+                S = float(np.sum(np.maximum(P[band] - floor, 0.0) / w) * df)
+                if S > 0 and floor > 0:
+                    e = 2 * p_int - 1
+                    fc = (floor / (e * (2 * np.pi) ** (2 * p_int) * noise_tol ** 2 * S)) ** (1 / e)
+                    noise_hz = max(noise_hz or 0.0, float(fc))
+    lines_merged: list[float] = []
+    for f0 in sorted(lines):
+        if not lines_merged or f0 - lines_merged[-1] > 2 * resolution:
+            lines_merged.append(f0)
+    peaks = sorted(set(peaks))
+    return SpectrumSummary(peaks, lines_merged, first, top, resolution, noise_hz)
+
+
+def _stationary_lines(x: np.ndarray, fs: float, nper: int, freq: np.ndarray,
+                      P: np.ndarray, thr: float) -> list[float]:
+    """Narrow peaks that do not decay while the record does (hum, tones): noise."""
+    n = len(x)
+    third = n // 3
+    pk, _ = signal.find_peaks(P, height=thr)
+    if not pk.size:
+        return []
+    df = freq[1] - freq[0]
+    # narrow: the level 2 bins away has dropped by 10 dB or more
+    narrow = [p for p in pk if 2 <= p < len(P) - 2 and max(P[p - 2], P[p + 2]) < 0.1 * P[p]]
+    if not narrow:
+        return []
+    decaying = third >= 32 and np.std(x[-third:]) < 0.1 * np.std(x[:third])
+    out: list[float] = []
+    if decaying:
+        seg = int(min(third, nper))
+        f1, P1 = signal.welch(x[:third], fs=fs, nperseg=seg, detrend="linear")
+        f3, P3 = signal.welch(x[-third:], fs=fs, nperseg=seg, detrend="linear")
+        for p in narrow:
+            k = int(np.argmin(np.abs(f1 - freq[p])))
+            lo, hi = max(k - 1, 0), k + 2
+            a, b = float(P1[lo:hi].max()), float(P3[lo:hi].max())
+            if b > 0 and 0.25 < b / a < 4.0:
+                out.append(float(freq[p]))
+    else:
+        for p in narrow:
+            f0 = float(freq[p])
+            for mains in (50.0, 60.0):
+                h = round(f0 / mains)
+                if h >= 1 and abs(f0 - h * mains) <= max(1.5 * df, 0.005 * f0):
+                    out.append(f0)
+                    break
+    return out

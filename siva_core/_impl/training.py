@@ -18,13 +18,15 @@ where the paper is vague, each measured in ``benchmarks/bench_siva_choices.py``:
   last batch.
 * Learning rate: the paper's 1e-4 throughout (``paper()``), or 1e-3 until convergence
   and 1e-4 for the Approach II harvest (``fast()``): 10x fewer epochs to converge, the
-  same small per-epoch jitter afterwards.
+  same small per-epoch jitter afterwards; the harvest starts ``ensemble_burn_in`` epochs
+  after the switch, once the optimiser has settled at the smaller step.
 * Initialisation: the exponent e0 of each parameter from its scale hint, else from the
   order of magnitude of an equation-error least-squares guess; mantissa starts at 1
   (``init="magnitude"``).  ``init="ls"`` starts at the least-squares value itself.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Sequence
@@ -56,6 +58,7 @@ class SivaSettings:
     init: str = "magnitude"  # or "ls" or "scale"
     max_epochs: int = 1000
     ensemble_epochs: int = 200  # Approach II samples harvested after convergence
+    ensemble_burn_in: int = 0  # epochs skipped after convergence before harvesting
     ensemble_maxlen: int | None = 400  # running-ensemble bound for the service
     conv_window: int = 20
     conv_rel_tol: float = 2e-3
@@ -75,7 +78,8 @@ class SivaSettings:
     def fast(cls, **kw: Any) -> "SivaSettings":
         """Defaults of this project: the paper's networks and optimiser, a larger learning
         rate, automatic convergence and a shorter Approach II harvest."""
-        base = dict(lr=1e-3, lr_converged=1e-4, max_epochs=600, ensemble_epochs=150)
+        base = dict(lr=1e-3, lr_converged=1e-4, max_epochs=600, ensemble_epochs=150,
+                    ensemble_burn_in=25)
         base.update(kw)
         return cls(**base)
 
@@ -92,7 +96,12 @@ class EpochLog:
 
 @dataclass
 class _Pool:
-    """Samples of several records stacked as torch tensors, with per-record offsets."""
+    """Samples of several records stacked as torch tensors, with per-record offsets.
+
+    For a model linear in every free parameter the acceleration is ``a0 + phi @ theta``
+    per sample; ``phi`` and ``a0`` are precomputed once so a training step costs one
+    small product instead of a walk over the elements (3-4x faster per step).
+    """
 
     q: torch.Tensor
     v: torch.Tensor
@@ -100,18 +109,53 @@ class _Pool:
     f: torch.Tensor
     names: list[str]
     bounds: list[tuple[int, int]] = field(default_factory=list)
+    phi: torch.Tensor | None = None  # (N, n_dof, n_free)
+    a0: torch.Tensor | None = None  # (N, n_dof)
 
     @classmethod
-    def of(cls, states: Sequence[States]) -> "_Pool":
+    def of(cls, states: Sequence[States], structure: Structure) -> "_Pool":
         cat = lambda attr: torch.from_numpy(np.concatenate([getattr(s, attr) for s in states]))
         bounds, start = [], 0
         for s in states:
             bounds.append((start, start + len(s)))
             start += len(s)
-        return cls(cat("q"), cat("v"), cat("a"), cat("f"), [s.name for s in states], bounds)
+        pool = cls(cat("q"), cat("v"), cat("a"), cat("f"), [s.name for s in states], bounds)
+        free = structure.free
+        if set(structure.linear_parameters()) == set(free):
+            zero = torch.zeros(len(free), dtype=torch.float64)
+            pool.a0 = structure.accelerations(zero, pool.q, pool.v, pool.f)
+            cols = []
+            for k in range(len(free)):
+                unit = zero.clone()
+                unit[k] = 1.0
+                cols.append(structure.accelerations(unit, pool.q, pool.v, pool.f) - pool.a0)
+            pool.phi = torch.stack(cols, dim=-1)
+        return pool
 
     def __len__(self) -> int:
         return self.q.shape[0]
+
+    def draw(self, n: int, rng: torch.Generator) -> "_Batch":
+        idx = torch.randint(0, len(self), (n,), generator=rng)
+        return _Batch(self.q[idx], self.v[idx], self.a[idx], self.f[idx],
+                      None if self.phi is None else self.phi[idx],
+                      None if self.a0 is None else self.a0[idx])
+
+
+@dataclass
+class _Batch:
+    q: torch.Tensor
+    v: torch.Tensor
+    a: torch.Tensor
+    f: torch.Tensor
+    phi: torch.Tensor | None
+    a0: torch.Tensor | None
+
+    def model_acc(self, structure: Structure, theta: torch.Tensor) -> torch.Tensor:
+        """Model accelerations at this batch's states, one parameter set per sample."""
+        if self.phi is not None:
+            return self.a0 + (self.phi * theta[:, None, :]).sum(-1)
+        return structure.accelerations(theta, self.q, self.v, self.f)
 
 
 class SivaTrainer:
@@ -149,8 +193,8 @@ class SivaTrainer:
         """Use these records from now on; networks and optimiser state are kept."""
         if not train:
             raise ValueError("SIVA needs at least one training record")
-        self.train = _Pool.of(train)
-        self.val = _Pool.of(val) if val else None
+        self.train = _Pool.of(train, self.structure)
+        self.val = _Pool.of(val, self.structure) if val else None
         ref = self.train
         rms = lambda x: x.pow(2).mean(0).sqrt().clamp_min(1e-12)
         self._scale = {"q": rms(ref.q), "v": rms(ref.v), "a": rms(ref.a)}
@@ -185,10 +229,6 @@ class SivaTrainer:
     def _noise(self, n: int) -> torch.Tensor:
         return torch.randn(n, self.settings.latent_dim, generator=self.rng)
 
-    def _batch(self, pool: _Pool, n: int) -> tuple[torch.Tensor, ...]:
-        idx = torch.randint(0, len(pool), (n,), generator=self.rng)
-        return pool.q[idx], pool.v[idx], pool.a[idx], pool.f[idx]
-
     # ------------------------------------------------------------------ training
     def run_epoch(self) -> EpochLog:
         """One epoch of alternating D and P updates (paper eqs. 2 and 4)."""
@@ -199,27 +239,26 @@ class SivaTrainer:
         steps = s.steps_per_epoch or max(1, math.ceil(len(self.train) / B))
         val = self.val if self.val is not None else self.train
         sa = self._scale["a"]
-        acc = self.structure.accelerations
+        st = self.structure
         sums = np.zeros(3)
         theta = None
         for _ in range(steps):
-            qt, vt, at, ft = self._batch(self.train, B)
-            qv, vv, av, fv = self._batch(val, B)
+            bt = self.train.draw(B, self.rng)
+            bv = val.draw(B, self.rng)
             theta = self.generator(self._noise(B))
             # discriminator step: real validation accelerations vs the model's at the same states
-            fake_val = acc(theta, qv, vv, fv)
-            real_logit = self.discriminator(self._features(qv, vv, av))
-            fake_logit = self.discriminator(self._features(qv, vv, fake_val.detach()))
+            fake_val = bv.model_acc(st, theta)
+            real_logit = self.discriminator(self._features(bv.q, bv.v, bv.a))
+            fake_logit = self.discriminator(self._features(bv.q, bv.v, fake_val.detach()))
             loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
                       + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
             self.opt_d.zero_grad(set_to_none=True)
             loss_d.backward()
             self.opt_d.step()
             # generator step: fool the updated D on validation, match training accelerations (eq. 4)
-            logit = self.discriminator(self._features(qv, vv, fake_val))
+            logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
             loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
-            fake_tr = acc(theta, qt, vt, ft)
-            loss_mse = ((fake_tr - at) / sa).pow(2).mean()
+            loss_mse = ((bt.model_acc(st, theta) - bt.a) / sa).pow(2).mean()
             loss_p = loss_adv + s.gamma * loss_mse
             self.opt_g.zero_grad(set_to_none=True)
             loss_p.backward()
@@ -236,7 +275,7 @@ class SivaTrainer:
         h["theta"].append(theta_epoch)
         was = self.monitor.converged
         conv = self.monitor.update(e, theta_epoch)
-        if conv and was:
+        if conv and was and e > self.monitor.converged_at + s.ensemble_burn_in:
             self.ensemble.add(theta_epoch, e)
         elif conv and s.lr_converged is not None:
             self._set_lr(s.lr_converged)
@@ -288,13 +327,14 @@ class SivaTrainer:
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict[str, Any]:
-        return {"settings": asdict(self.settings), "epoch": self.epoch, "initialised": self.initialised,
+        """An independent snapshot (deep copy: live tensors would change under it)."""
+        return copy.deepcopy({"settings": asdict(self.settings), "epoch": self.epoch, "initialised": self.initialised,
                 "generator": self.generator.state_dict(), "discriminator": self.discriminator.state_dict(),
                 "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict(),
                 "rng": self.rng.get_state(), "monitor": self.monitor.state_dict(),
                 "ensemble": self.ensemble.state_dict(),
                 "history": {k: [np.asarray(x).tolist() for x in v] for k, v in self.history.items()},
-                "initial_guess": getattr(self, "initial_guess_", {})}
+                "initial_guess": getattr(self, "initial_guess_", {})})
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         self.epoch = d["epoch"]

@@ -1,0 +1,513 @@
+"""The paper's figures for one SIVA run, as PNGs plus an ``index.html`` that shows them.
+
+``write_report(est, dir)`` draws, from a fitted :class:`~siva_core.Siva`:
+
+(a) ``losses.png`` - discriminator loss with the ln 4 line (eq. 3), adversarial term with
+    ln(4)/2 (= ln 2, the BCE of D = 0.5 against label 1; paper Sec. 3.1), MSE on a log
+    axis; the convergence epoch marked (paper Figs. 3a, 8a);
+(b) ``parameters.png`` - each parameter per epoch, the Approach II window shaded;
+(c) ``distributions.png`` - Approach II histogram, fitted normal pdf over +-6 std, mean
+    dashed red, 95 % CI shaded green, exact value solid black when known, Approach III and
+    ``best`` marked (paper Figs. 3c, 8c);
+(d) ``response_<k>.png`` per train / validation record - measured vs simulated displacement:
+    mean of simulations of (a subset of) Approach I samples with the 95 % band, and the
+    Approach I mean, II, III and best parameter sets (paper Figs. 4, 5, 9, 11);
+(e) ``spectrum_<k>.png`` - Fourier amplitude spectra of measured vs simulated;
+(f) ``cwt_<k>.png`` - complex-Morlet CWT (maximum 1) of measured vs best-simulated.
+
+Simulations go through the same processing chain as the measurement
+(:class:`~siva_core._impl.refine.OutputErrorProblem`), so what is compared is like with like
+(the chain's own distortion appears on both sides).  Raw recordings are taken from
+``est.train_recordings_`` / ``est.val_recordings_`` or the ``train=``/``val=`` arguments;
+without them the processed states are simulated as records of their own (noted in the page).
+"""
+from __future__ import annotations
+
+import html
+import math
+import re
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from .ensemble import Z95
+from .processing import Processing, States
+from .recording import Recording
+from .spectra import cwt, fourier_amplitude, frequency_band
+
+LN4 = math.log(4.0)
+#: colours used consistently across figures (paper: measured black, Approach I blue/pink band)
+COLOURS = {"measured": "black", "band": "#f4a6c0", "I_mean_sim": "tab:blue",
+           "approach_I": "tab:green", "approach_II": "tab:orange", "approach_III": "tab:purple",
+           "best": "tab:red", "truth": "black"}
+LABELS = {"approach_I": "Approach I (mean params)", "approach_II": "Approach II",
+          "approach_III": "Approach III", "best": "best"}
+
+Progress = Callable[[str], None]
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+@dataclass
+class _RecordSims:
+    """One record: measured processed displacement and the simulated ones (mm)."""
+
+    name: str
+    role: str
+    t: np.ndarray
+    measured: np.ndarray            # (T, n_dof) mm
+    band_sims: np.ndarray           # (S, T, n_dof) mm, finite Approach I simulations
+    points: dict[str, np.ndarray]   # approach -> (T, n_dof) mm (NaN if diverged)
+    n_diverged: int
+    fs: float
+
+
+# ---------------------------------------------------------------------------- entry point
+def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | None = None,
+                 train: Sequence[Recording] | None = None, val: Sequence[Recording] | None = None,
+                 n_sims: int = 200, dpi: int = 100, progress: Progress | None = _stderr
+                 ) -> list[Path]:
+    """Write the figures and ``index.html`` into ``out_dir``; returns the written paths
+    (PNGs in drawing order, ``index.html`` last).  ``truth`` (optional) marks exact values.
+    ``n_sims`` Approach I samples are simulated for the band (the paper used all 1000)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    res = est.result_
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda _m: None)
+    names = list(res.names)
+    truth_vec = _truth_vector(names, truth)
+    written: list[tuple[Path, str]] = []
+    t_start = time.perf_counter()
+
+    def save(fig: Any, fname: str, caption: str) -> None:
+        path = out / fname
+        if not getattr(fig, "_siva_laid_out", False):
+            fig.tight_layout()  # one layout pass: constrained layout re-runs on every draw
+        fig.savefig(path, dpi=dpi)
+        plt.close(fig)
+        written.append((path, caption))
+        say(f"report: {fname} ({time.perf_counter() - t_start:.1f} s)")
+
+    save(_fig_losses(plt, res), "losses.png",
+         "(a) Losses per epoch: discriminator (ln 4 = optimum, eq. 3), adversarial term "
+         "(ln(4)/2), MSE of the accelerations (log axis); dotted: convergence epoch.")
+    window = _window(est, res)
+    save(_fig_parameters(plt, res, names, window, truth_vec), "parameters.png",
+         "(b) Parameter per epoch (mean of the epoch's last batch); shaded: the Approach II "
+         "window.")
+    save(_fig_distributions(plt, res, names, truth_vec), "distributions.png",
+         "(c) Approach II distribution: histogram, fitted normal pdf over +-6 std, mean "
+         "(dashed red), 95 % CI (green); Approach III, best and exact value marked.")
+
+    recs, note = _records(est, train, val)
+    say(f"report: simulating {len(recs)} records ({min(n_sims, len(res.samples_I))} Approach I "
+        f"samples + 4 point estimates each)")
+    sims = [_simulate_record(est, res, rec, role, n_sims) for rec, role in recs]
+    for k, rs in enumerate(sims):
+        slug = f"{k}_{_slug(rs.name)}"
+        save(_fig_response(plt, rs, est.structure.dofs), f"response_{slug}.png",
+             f"(d) {rs.role} record {rs.name}: measured vs simulated displacement.")
+        save(_fig_spectrum(plt, rs, est.structure.dofs), f"spectrum_{slug}.png",
+             f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra.")
+        save(_fig_cwt(plt, rs, est.structure.dofs), f"cwt_{slug}.png",
+             f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best.")
+
+    index = out / "index.html"
+    index.write_text(_html(est, res, names, truth_vec, written, sims, note))
+    say(f"report: index.html, {len(written)} figures in {time.perf_counter() - t_start:.1f} s")
+    return [p for p, _ in written] + [index]
+
+
+# ---------------------------------------------------------------------------- data helpers
+def _truth_vector(names: Sequence[str], truth: Mapping[str, float] | None) -> np.ndarray | None:
+    if not truth:
+        return None
+    return np.array([float(truth[p]) if p in truth else np.nan for p in names])
+
+
+def _window(est: Any, res: Any) -> tuple[int, int] | None:
+    """First and last epoch of the Approach II samples."""
+    ens = getattr(getattr(est, "trainer_", None), "ensemble", None)
+    if ens is not None and len(ens):
+        ep = ens.epochs
+        return int(ep.min()), int(ep.max())
+    n_ep = len(res.history.get("theta", []))
+    E = len(res.samples_II)
+    if n_ep == 0 or E == 0:
+        return None
+    return max(0, n_ep - E), n_ep - 1
+
+
+def _records(est: Any, train: Sequence[Recording] | None, val: Sequence[Recording] | None
+             ) -> tuple[list[tuple[Recording, str]], str | None]:
+    """(recording, role) pairs: raw recordings when known, else the processed states."""
+    train = train if train is not None else getattr(est, "train_recordings_", None)
+    val = val if val is not None else getattr(est, "val_recordings_", None)
+    note = None
+    if train is None:
+        train = [_states_as_recording(s, est.structure.dofs) for s in est.train_states_]
+        val = [_states_as_recording(s, est.structure.dofs) for s in est.val_states_]
+        note = ("raw recordings were not available: each record was simulated from its "
+                "processed states (first state, processed force).")
+    elif val is None:
+        val = []
+    return [(r, "training") for r in train] + [(r, "validation") for r in val], note
+
+
+def _states_as_recording(s: States, dofs: Sequence[str]) -> Recording:
+    ch: dict[str, np.ndarray] = {}
+    for k, d in enumerate(dofs):
+        ch[f"disp_{d}"] = s.q[:, k]
+        ch[f"vel_{d}"] = s.v[:, k]
+        ch[f"acc_{d}"] = s.a[:, k]
+        if s.has_force:
+            ch[f"force_{d}"] = s.f[:, k]
+    return Recording(s.t, ch, s.name, {"from_states": True})
+
+
+def _simulate_record(est: Any, res: Any, rec: Recording, role: str, n_sims: int) -> _RecordSims:
+    """Simulate the Approach I subset and the point estimates on one record, through the
+    chain, in one batch (substeps chosen from the point estimates and the band's 2.5/97.5 %
+    parameter percentiles, so one odd sample cannot force thousands of substeps)."""
+    from .refine import OutputErrorProblem
+
+    st = est.structure
+    if rec.meta.get("from_states"):
+        proc = Processing()  # the states are already processed
+    else:
+        proc = getattr(est, "processing_", None) or res.processing or Processing()
+    ests = res.estimates()
+    order = ["approach_I", "approach_II", "approach_III", "best"]
+    pts = np.stack([np.asarray(ests[k], dtype=float) for k in order])
+    sub = np.asarray(res.samples_I, dtype=float)[:n_sims]
+    ref = np.vstack([pts, np.percentile(sub, [2.5, 97.5], axis=0)]) if len(sub) else pts
+    prob = OutputErrorProblem.build(st, [rec], proc, quantity="disp", theta_ref=ref)
+    thetas = np.vstack([sub, pts]) if len(sub) else pts
+    states = prob.simulated_states(thetas, 0)
+    target = prob.records[0].target * 1e3
+    meas = proc.apply(rec, st.dofs)
+    T, n = target.shape
+
+    def q_of(s: States | None) -> np.ndarray:
+        if s is None or not np.all(np.isfinite(s.q)):
+            return np.full((T, n), np.nan)
+        return s.q * 1e3
+
+    all_q = [q_of(s) for s in states]
+    band = np.array([q for q in all_q[:len(sub)] if np.all(np.isfinite(q))]).reshape(-1, T, n)
+    points = {k: all_q[len(sub) + i] for i, k in enumerate(order)}
+    return _RecordSims(rec.name, role, meas.t, target, band, points,
+                       len(sub) - len(band), 1.0 / meas.dt)
+
+
+def _mse(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean over time and DOFs of the squared difference (inf when b diverged)."""
+    return float(np.mean((a - b) ** 2)) if np.all(np.isfinite(b)) else math.inf
+
+
+def _slug(name: str) -> str:
+    stem = re.sub(r"\.(csv|json|npz|mcap)$", "", name, flags=re.I)
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_")[:40] or "record"
+
+
+def _grid(n: int) -> tuple[int, int]:
+    ncols = min(3, n) if n != 4 else 2
+    return math.ceil(n / ncols), ncols
+
+
+# ---------------------------------------------------------------------------- figures
+def _fig_losses(plt: Any, res: Any) -> Any:
+    h = res.history
+    ep = np.arange(len(h["loss_d"]))
+    fig, axs = plt.subplots(1, 3, figsize=(13, 3.6))
+    ax = axs[0]
+    ax.plot(ep, h["loss_d"], lw=0.8, color="tab:blue", label=r"$\mathcal{L}_D$")
+    ax.axhline(LN4, color="k", ls="--", lw=1, label=f"ln 4 = {LN4:.4f}")
+    ax.set_title("Discriminator loss")
+    ax = axs[1]
+    ax.plot(ep, h["loss_adv"], lw=0.8, color="tab:orange", label=r"$\mathcal{L}_{adv}$")
+    ax.axhline(LN4 / 2, color="k", ls="--", lw=1, label=f"ln(4)/2 = {LN4 / 2:.4f}")
+    ax.set_title("Adversarial term of the generator loss")
+    ax = axs[2]
+    mse = np.asarray(h["loss_mse"], dtype=float)
+    ax.semilogy(ep, np.where(mse > 0, mse, np.nan), lw=0.8, color="tab:green",
+                label=r"$\mathcal{L}_{MSE}$ (normalised acc.)")
+    ax.set_title("MSE term (log axis)")
+    for ax in axs:
+        if res.converged_epoch is not None:
+            ax.axvline(res.converged_epoch, color="tab:red", ls=":", lw=1.2,
+                       label=f"converged (epoch {res.converged_epoch})")
+        ax.set_xlabel("epoch")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def _fig_parameters(plt: Any, res: Any, names: Sequence[str], window: tuple[int, int] | None,
+                    truth: np.ndarray | None) -> Any:
+    theta = np.array(res.history["theta"], dtype=float).reshape(-1, len(names))
+    ep = np.arange(len(theta))
+    nr, nc = _grid(len(names))
+    fig, axs = plt.subplots(nr, nc, figsize=(4.3 * nc, 2.9 * nr),
+                            squeeze=False)
+    for k, p in enumerate(names):
+        ax = axs.flat[k]
+        ax.plot(ep, theta[:, k], lw=0.8, color="tab:blue", label="per epoch")
+        if window is not None:
+            ax.axvspan(window[0], window[1], color="tab:green", alpha=0.15,
+                       label="Approach II window")
+        if truth is not None and np.isfinite(truth[k]):
+            ax.axhline(truth[k], color=COLOURS["truth"], lw=1, label=f"exact {truth[k]:.5g}")
+        ax.axhline(res.best[k], color=COLOURS["best"], ls="--", lw=1, label=f"best {res.best[k]:.5g}")
+        if res.converged_epoch is not None:
+            ax.axvline(res.converged_epoch, color="tab:red", ls=":", lw=1)
+        # a first-epoch excursion would flatten the interesting part: limit to the harvest
+        tail = theta[len(theta) // 4:, k]
+        if len(tail) > 4 and np.all(np.isfinite(tail)):
+            lo, hi = np.percentile(tail, [0.5, 99.5])
+            refs = [res.best[k]] + ([truth[k]] if truth is not None and np.isfinite(truth[k]) else [])
+            lo, hi = min(lo, *refs), max(hi, *refs)
+            pad = 0.15 * (hi - lo) if hi > lo else 0.05 * abs(hi) + 1e-12
+            full_lo, full_hi = np.nanmin(theta[:, k]), np.nanmax(theta[:, k])
+            ax.set_ylim(max(full_lo, lo - pad) - pad * 0.2, min(full_hi, hi + pad) + pad * 0.2)
+        ax.set_title(p)
+        ax.set_xlabel("epoch")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    for ax in list(axs.flat)[len(names):]:
+        ax.set_visible(False)
+    return fig
+
+
+def _fig_distributions(plt: Any, res: Any, names: Sequence[str], truth: np.ndarray | None) -> Any:
+    S = np.asarray(res.samples_II, dtype=float).reshape(-1, len(names))
+    nr, nc = _grid(len(names))
+    fig, axs = plt.subplots(nr, nc, figsize=(4.3 * nc, 3.0 * nr),
+                            squeeze=False)
+    for k, p in enumerate(names):
+        ax = axs.flat[k]
+        col = S[:, k][np.isfinite(S[:, k])]
+        summ = res.approach_II.get(p, {})
+        mu = float(summ.get("mean", col.mean() if len(col) else np.nan))
+        sd = float(summ.get("std", col.std(ddof=1) if len(col) > 1 else 0.0))
+        if len(col):
+            ax.hist(col, bins=min(40, max(8, len(col) // 8)), density=True, color="tab:blue",
+                    alpha=0.45, label=f"Approach II (n={len(col)})")
+        if sd > 0 and np.isfinite(sd):
+            x = np.linspace(mu - 6 * sd, mu + 6 * sd, 400)
+            pdf = np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * math.sqrt(2 * math.pi))
+            ax.plot(x, pdf, color="tab:blue", lw=1.3, label="normal fit")
+            ax.set_xlim(x[0], x[-1])
+            ax.axvspan(mu - Z95 * sd, mu + Z95 * sd, color="tab:green", alpha=0.2,
+                       label=f"95 % CI [{mu - Z95 * sd:.4g}, {mu + Z95 * sd:.4g}]")
+        ax.axvline(mu, color="red", ls="--", lw=1.3, label=f"mean {mu:.5g}")
+        lim = ax.get_xlim()
+        marks = [("approach_III", float(res.approach_III[k]), ":", COLOURS["approach_III"]),
+                 ("best", float(res.best[k]), "-.", COLOURS["best"])]
+        if truth is not None and np.isfinite(truth[k]):
+            marks.append(("exact", float(truth[k]), "-", COLOURS["truth"]))
+        for label, val, ls, c in marks:
+            off = not (lim[0] <= val <= lim[1])
+            text = f"{LABELS.get(label, label)} {val:.5g}" + (" (off axis)" if off else "")
+            if off:
+                ax.plot([], [], color=c, ls=ls, label=text)
+            else:
+                ax.axvline(val, color=c, ls=ls, lw=1.4, label=text)
+        ax.set_title(p)
+        ax.set_ylabel("pdf")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6.5, loc="upper right")
+    for ax in list(axs.flat)[len(names):]:
+        ax.set_visible(False)
+    return fig
+
+
+def _fig_response(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+    n = len(dofs)
+    fig, axs = plt.subplots(n, 2, figsize=(13, 3.0 * n), squeeze=False,
+                            sharex=True)
+    t = rs.t
+    for k, d in enumerate(dofs):
+        m = rs.measured[:, k]
+        ax = axs[k, 0]
+        ax.plot(t, m, color=COLOURS["measured"], lw=1.0, label="measured")
+        if len(rs.band_sims):
+            b = rs.band_sims[:, :, k]
+            lo, hi = np.percentile(b, [2.5, 97.5], axis=0)
+            mean = b.mean(axis=0)
+            ax.fill_between(t, lo, hi, color=COLOURS["band"], alpha=0.7, lw=0,
+                            label=f"95 % band ({len(b)} Approach I sims)")
+            ax.plot(t, mean, color=COLOURS["I_mean_sim"], lw=0.9,
+                    label=f"mean of sims (MSE {_mse(m, mean):.3g} mm²)")
+        pI = rs.points["approach_I"][:, k]
+        ax.plot(t, pI, color=COLOURS["approach_I"], lw=0.9, ls="--",
+                label=f"Approach I mean params (MSE {_mse(m, pI):.3g} mm²)")
+        ax.set_title(f"{rs.name} ({rs.role}) - {d}: Approach I"
+                     + (f", {rs.n_diverged} sims diverged" if rs.n_diverged else ""))
+        ax = axs[k, 1]
+        ax.plot(t, m, color=COLOURS["measured"], lw=1.0, label="measured")
+        for key, ls in (("approach_II", "-"), ("approach_III", "--"), ("best", ":")):
+            y = rs.points[key][:, k]
+            ax.plot(t, y, color=COLOURS[key], lw=1.0, ls=ls,
+                    label=f"{LABELS[key]} (MSE {_mse(m, y):.3g} mm²)")
+        ax.set_title(f"{rs.name} ({rs.role}) - {d}: Approaches II, III, best")
+        for ax in axs[k]:
+            ax.set_ylabel(f"{d} displacement [mm]")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="upper right")
+    for ax in axs[-1]:
+        ax.set_xlabel("time [s]")
+    return fig
+
+
+def _fig_spectrum(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+    n = len(dofs)
+    fig, axs = plt.subplots(n, 1, figsize=(9, 3.0 * n), squeeze=False)
+    fmin, fmax = frequency_band(rs.measured, rs.fs)
+    for k, d in enumerate(dofs):
+        ax = axs[k, 0]
+        f, a = fourier_amplitude(rs.measured[:, k], rs.fs)
+        sel = f <= fmax
+        ax.semilogy(f[sel], a[sel], color=COLOURS["measured"], lw=1.2, label="measured")
+        if len(rs.band_sims):
+            _, am = fourier_amplitude(rs.band_sims[:, :, k].mean(axis=0), rs.fs)
+            ax.semilogy(f[sel], am[sel], color=COLOURS["I_mean_sim"], lw=0.9,
+                        label="mean of Approach I sims")
+        for key, ls in (("approach_II", "-"), ("approach_III", "--"), ("best", ":")):
+            y = rs.points[key][:, k]
+            if np.all(np.isfinite(y)):
+                _, ay = fourier_amplitude(y, rs.fs)
+                ax.semilogy(f[sel], ay[sel], color=COLOURS[key], lw=1.0, ls=ls, label=LABELS[key])
+        band = a[sel & (f >= fmin)]
+        top = float(band.max()) if band.size and band.max() > 0 else 1.0
+        floor = float(np.percentile(band[band > 0], 1)) / 3 if np.any(band > 0) else top * 1e-4
+        ax.set_ylim(max(floor, top * 1e-5), top * 3)
+        ax.set_xlim(0, fmax)
+        ax.set_title(f"{rs.name} ({rs.role}) - {d}: Fourier amplitude")
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("amplitude [mm]")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, loc="upper right")
+    return fig
+
+
+def _fig_cwt(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+    n = len(dofs)
+    fig, axs = plt.subplots(n, 2, figsize=(12, 3.0 * n), squeeze=False,
+                            sharey="row")
+    t = rs.t
+    _, fmax = frequency_band(rs.measured, rs.fs)
+    freqs = np.linspace(max(fmax / 100, 2 * rs.fs / len(t)), fmax, 96)
+    stride = max(1, len(t) // 1500)
+    im = None
+    for k, d in enumerate(dofs):
+        for j, (label, y) in enumerate((("measured", rs.measured[:, k]),
+                                        ("best (simulated)", rs.points["best"][:, k]))):
+            ax = axs[k, j]
+            if np.all(np.isfinite(y)) and np.ptp(y) > 0:
+                _, mag = cwt(y, rs.fs, freqs)
+                im = ax.imshow(mag[:, ::stride], aspect="auto", origin="lower", cmap="jet",
+                               vmin=0, vmax=1, extent=(t[0], t[-1], freqs[0], freqs[-1]),
+                               interpolation="nearest")
+            else:
+                ax.text(0.5, 0.5, "simulation diverged", ha="center", transform=ax.transAxes)
+            ax.set_title(f"{rs.name} - {d}: CWT {label}")
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("frequency [Hz]")
+    fig.tight_layout(rect=(0, 0, 0.91, 1))
+    if im is not None:
+        cax = fig.add_axes((0.925, 0.15, 0.012, 0.7))
+        fig.colorbar(im, cax=cax, label="normalised |W|")
+    fig._siva_laid_out = True
+    return fig
+
+
+# ---------------------------------------------------------------------------- HTML
+def _fmt(x: Any) -> str:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return html.escape(str(x))
+    return f"{v:.5g}" if np.isfinite(v) else str(v)
+
+
+def _html(est: Any, res: Any, names: Sequence[str], truth: np.ndarray | None,
+          figures: list[tuple[Path, str]], sims: list[_RecordSims], note: str | None) -> str:
+    e = html.escape
+    rows = []
+    for k, p in enumerate(names):
+        I, II = res.approach_I[p], res.approach_II[p]
+        best_ci = ""
+        if res.best_std is not None:
+            s = float(res.best_std[k])
+            best_ci = f" [{_fmt(res.best[k] - Z95 * s)}, {_fmt(res.best[k] + Z95 * s)}]"
+        cells = [e(p)]
+        if truth is not None:
+            cells.append(_fmt(truth[k]))
+        cells += [f"{_fmt(I['mean'])} [{_fmt(I['ci95'][0])}, {_fmt(I['ci95'][1])}]",
+                  f"{_fmt(II['mean'])} [{_fmt(II['ci95'][0])}, {_fmt(II['ci95'][1])}]",
+                  _fmt(res.approach_III[k]), _fmt(res.best[k]) + best_ci]
+        if truth is not None and np.isfinite(truth[k]) and truth[k] != 0:
+            cells.append(f"{100 * (res.best[k] - truth[k]) / abs(truth[k]):+.3f} %")
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    head = ["parameter"] + (["exact"] if truth is not None else []) + \
+        ["Approach I mean [95 % CI]", "Approach II mean [95 % CI]", "Approach III",
+         "best [95 % CI]"] + (["best error"] if truth is not None else [])
+    ptable = ("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>"
+              + "".join(rows) + "</table>")
+
+    mrows = []
+    for split in ("train", "validation"):
+        for approach, m in (res.metrics.get(split) or {}).items():
+            mrows.append(f"<tr><td>{e(split)}</td><td>{e(approach)}</td>"
+                         f"<td>{_fmt(m.get('disp_mse_mm2'))}</td>"
+                         f"<td>{_fmt(m.get('output_error'))}</td></tr>")
+    mtable = ("<table><tr><th>records</th><th>estimate</th><th>displacement MSE [mm²]</th>"
+              "<th>output error (NMSE)</th></tr>" + "".join(mrows) + "</table>") if mrows else ""
+
+    disc = res.discriminator or {}
+    timing = ", ".join(f"{e(k)} {v:.2f} s" for k, v in res.timing_s.items())
+    notes = list(res.notes) + ([note] if note else [])
+    figs = "\n".join(
+        f'<figure><img src="{e(p.name)}" alt="{e(p.stem)}"><figcaption>{e(c)}</figcaption></figure>'
+        for p, c in figures)
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<title>SIVA report - {e(est.structure.name)}</title>
+<style>
+body {{ font-family: sans-serif; margin: 1.5em; max-width: 1400px; }}
+table {{ border-collapse: collapse; margin: 0.6em 0 1.2em; font-size: 0.9em; }}
+td, th {{ border: 1px solid #bbb; padding: 3px 8px; text-align: right; }}
+th {{ background: #eee; }}
+figure {{ margin: 1em 0 2em; }} img {{ max-width: 100%; border: 1px solid #ddd; }}
+figcaption {{ color: #333; font-size: 0.9em; }}
+</style></head><body>
+<h1>SIVA identification: {e(est.structure.name)}</h1>
+<p>{len(res.history.get('loss_d', []))} epochs, converged at epoch {e(str(res.converged_epoch))};
+Approach I: {len(res.samples_I)} samples; Approach II: {len(res.samples_II)} epochs.
+Final discriminator loss {_fmt(disc.get('loss_d'))} (ln 4 = {LN4:.4f}, distance
+{_fmt(disc.get('ln4_distance'))}).</p>
+<p>Timing: {timing}.</p>
+{''.join(f'<p><em>Note: {e(n)}</em></p>' for n in notes)}
+<h2>Parameters</h2>
+{ptable}
+<h2>Displacement fit</h2>
+{mtable}
+<h2>Figures</h2>
+{figs}
+</body></html>
+"""
+
+
+__all__ = ["write_report"]
