@@ -1,0 +1,336 @@
+"""The FastAPI application: ``create_app(settings)``, the service registry, error handling.
+
+Error policy (CONTRACT: bad input gets a 4xx with ``{"detail": "<what, where>"}``, never a
+5xx): user errors are raised as :class:`ApiError` or come from siva_core as SpecError /
+RecordingError and are mapped to 4xx with their message; FastAPI's own validation errors
+are flattened to one readable string; anything else is a bug, logged with its traceback
+and answered 500.  The upload limit is enforced by a pure ASGI middleware that refuses a
+too-large Content-Length before the body is read and counts streamed bytes otherwise.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+from typing import Any, AsyncIterator
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from siva_core._impl.recording import RecordingError
+from siva_core._impl.structure import SpecError, Structure
+
+from .settings import Settings
+from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
+from .worker import SystemWorker, parse_upload
+
+log = logging.getLogger("siva.service")
+
+
+class ApiError(Exception):
+    """A refusal with an HTTP status and a detail naming what is wrong and where."""
+
+    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+        self.headers = headers
+
+
+class UploadTooLarge(Exception):
+    pass
+
+
+# --------------------------------------------------------------------------- event log hook
+class _NoEvents:
+    """Stand-in when service.mcap_log is unavailable: the log is optional."""
+
+    def log_spec(self, *a: Any, **k: Any) -> None: ...
+    def log_recording(self, *a: Any, **k: Any) -> None: ...
+    def log_dataset(self, *a: Any, **k: Any) -> None: ...
+    def log_snapshot(self, *a: Any, **k: Any) -> None: ...
+    def close(self) -> None: ...
+
+
+def _make_event_log(settings: Settings) -> Any:
+    try:
+        from .mcap_log import EventLog
+    except ImportError as exc:
+        log.warning("event log disabled (service.mcap_log unavailable: %s)", exc)
+        return _NoEvents()
+    try:
+        return EventLog(settings.data_dir, settings={"seed": settings.seed,
+                                                     "preset": settings.preset})
+    except Exception:  # noqa: BLE001 - an unusable log must not stop the service
+        log.exception("event log disabled (cannot open under %s)", settings.data_dir)
+        return _NoEvents()
+
+
+# --------------------------------------------------------------------------- the service
+class SivaService:
+    """Registry of systems: the durable store, one worker per system, the event log."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.store = Store(settings.data_dir, auto_validation_every=settings.auto_validation_every)
+        self.events: Any = _NoEvents()
+        self.structures: dict[str, Structure] = {}
+        self.workers: dict[str, SystemWorker] = {}
+        self.broken: dict[str, str] = {}
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        if self.settings.torch_threads:
+            import torch
+
+            torch.set_num_threads(self.settings.torch_threads)
+        self.events = _make_event_log(self.settings)
+        try:  # import torch and the trainer now, not inside the first PUT
+            import siva_core._impl.training  # noqa: F401
+        except Exception:  # noqa: BLE001 - the workers report it per system
+            log.exception("cannot import the trainer")
+        for name in self.store.load():
+            try:
+                structure = Structure.from_dict(self.store.spec(name))
+            except SpecError as exc:  # a spec that an older version accepted
+                log.error("system %s: stored spec no longer valid (%s); not trained", name, exc)
+                self.broken[name] = str(exc)
+                continue
+            self.structures[name] = structure
+            self._safe_event("log_spec", name, self.store.spec(name))
+            self._start_worker(name, structure)
+        log.info("service started: %d system(s) from %s", len(self.structures),
+                 self.settings.data_dir)
+
+    def stop(self) -> None:
+        with self._lock:
+            workers = list(self.workers.values())
+        for w in workers:
+            w._stop.set()
+            w._wake.set()
+        for w in workers:
+            w.stop()
+        self.events.close()
+
+    def _start_worker(self, name: str, structure: Structure) -> None:
+        w = SystemWorker(name, structure, self.store, self.settings, self.events)
+        with self._lock:
+            self.workers[name] = w
+        w.start()
+
+    def _safe_event(self, method: str, *args: Any, **kw: Any) -> None:
+        try:
+            getattr(self.events, method)(*args, **kw)
+        except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
+            log.exception("event log %s failed", method)
+
+    # ------------------------------------------------------------------ operations
+    def worker(self, name: str) -> SystemWorker:
+        w = self.workers.get(name)
+        if w is None:
+            if name in self.broken:
+                raise ApiError(409, f"system {name!r}: stored spec is invalid "
+                                    f"({self.broken[name]}); DELETE and PUT it again")
+            raise ApiError(404, f"system {name!r} does not exist (PUT /v1/systems/{name} first)")
+        return w
+
+    def put_system(self, name: str, spec: Any) -> tuple[bool, Structure]:
+        try:
+            structure = Structure.from_dict(spec)
+        except SpecError as exc:
+            raise ApiError(422, f"model spec: {exc}") from None
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            # a shape Structure.from_dict did not anticipate (e.g. a list where a name is
+            # expected): still the spec's fault; logged so the message can be improved
+            log.warning("spec for %s refused by an unanticipated check", name, exc_info=True)
+            raise ApiError(422, f"model spec: invalid ({type(exc).__name__}: {exc})") from None
+        if not structure.free:
+            raise ApiError(422, "model spec: no free parameters to identify (every parameter "
+                                "is fixed); SIVA needs at least one")
+        spec = structure.spec
+        with self._lock:
+            try:
+                created = self.store.put_spec(name, spec)
+            except SpecConflict as exc:
+                raise ApiError(409, str(exc)) from None
+            if not created:
+                return False, self.structures.get(name, structure)
+            self.structures[name] = structure
+        self._safe_event("log_spec", name, spec)
+        self._start_worker(name, structure)
+        return True, structure
+
+    def delete_system(self, name: str) -> None:
+        with self._lock:
+            w = self.workers.pop(name, None)
+            self.structures.pop(name, None)
+            self.broken.pop(name, None)
+        if w is not None:
+            w.stop()
+        try:
+            self.store.delete_system(name)
+        except UnknownSystem as exc:
+            raise ApiError(404, str(exc)) from None
+
+    def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
+                      filename: str) -> dict[str, Any]:
+        """Validate, store durably, log, notify the worker; runs in a worker thread."""
+        w = self.worker(name)
+        try:
+            info = parse_upload(w.structure, raw, fmt, filename)
+        except RecordingError as exc:
+            raise ApiError(422, str(exc)) from None
+        try:
+            meta, duplicate = self.store.add_recording(name, raw, role=role, fmt=fmt,
+                                                       filename=filename, info=info)
+        except DuplicateConflict as exc:
+            raise ApiError(409, str(exc)) from None
+        except UnknownSystem as exc:  # deleted while we parsed
+            raise ApiError(404, str(exc)) from None
+        except OSError as exc:
+            log.exception("cannot store a recording of %s", name)
+            raise ApiError(507, f"cannot store the recording: {exc.strerror or exc}") from None
+        if not duplicate:
+            self._safe_event("log_recording", name, meta.id, meta.role, raw, fmt, w.epoch,
+                             name=filename)
+            w.notify()
+        return {**meta.to_dict(), "duplicate": duplicate, "warnings": info["warnings"]}
+
+    def counts(self, name: str) -> dict[str, int]:
+        try:
+            return self.store.counts(name)
+        except UnknownSystem as exc:
+            raise ApiError(404, str(exc)) from None
+
+
+# --------------------------------------------------------------------------- middleware
+class BodyLimitMiddleware:
+    """413 for request bodies above ``limit`` bytes, without reading them whole.
+
+    A declared Content-Length above the limit is refused before the app runs; otherwise
+    the bytes are counted as the app reads them and the read fails with UploadTooLarge
+    (answered 413) as soon as the count passes the limit.
+    """
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        for key, value in scope.get("headers", []):
+            if key == b"content-length":
+                try:
+                    declared = int(value)
+                except ValueError:
+                    await _send_json(send, 400, "Content-Length header is not a number")
+                    return
+                if declared > self.limit:
+                    await _send_json(send, 413, _too_large(self.limit, f"{declared} bytes declared"))
+                    return
+        seen = 0
+        started = False
+
+        async def counting_receive() -> Message:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.limit:
+                    raise UploadTooLarge(_too_large(self.limit, f"more than {self.limit} bytes sent"))
+            return message
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, counting_receive, tracking_send)
+        except UploadTooLarge as exc:  # raised where the app did not handle it itself
+            if not started:
+                await _send_json(send, 413, str(exc))
+
+
+def _too_large(limit: int, what: str) -> str:
+    return f"request body too large: {what}, the limit is {limit} bytes (SIVA_MAX_UPLOAD_BYTES)"
+
+
+async def _send_json(send: Send, status: int, detail: str) -> None:
+    body = json.dumps({"detail": detail}).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                            (b"connection", b"close")]})
+    await send({"type": "http.response.body", "body": body})
+
+
+# --------------------------------------------------------------------------- the app
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app; systems are loaded and workers started in the lifespan."""
+    settings = settings or Settings.from_env()
+    service = SivaService(settings)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        service.start()
+        try:
+            yield
+        finally:
+            service.stop()
+
+    app = FastAPI(title="siva", version="0.1.0", lifespan=lifespan,
+                  description="Streaming structural system identification (SIVA). "
+                              "See docs/service.md.")
+    app.state.service = service
+    app.state.settings = settings
+
+    from .routes import router
+
+    app.include_router(router)
+
+    @app.exception_handler(ApiError)
+    async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status, headers=exc.headers)
+
+    @app.exception_handler(UploadTooLarge)
+    async def _too_large_handler(request: Request, exc: UploadTooLarge) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=413, headers={"connection": "close"})
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        parts = []
+        for err in exc.errors():
+            where = ".".join(str(x) for x in err.get("loc", ()))
+            parts.append(f"{where}: {err.get('msg', 'invalid')}")
+        return JSONResponse({"detail": "; ".join(parts) or "invalid request"}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
+        if exc.status_code == 404 and detail == "Not Found":
+            detail = f"no such endpoint: {request.method} {request.url.path}"
+        elif exc.status_code == 405:
+            detail = f"method {request.method} not allowed on {request.url.path}"
+        return JSONResponse({"detail": detail}, status_code=exc.status_code,
+                            headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(Exception)
+    async def _bug(request: Request, exc: Exception) -> JSONResponse:
+        log.error("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+        return JSONResponse({"detail": f"internal error ({type(exc).__name__}); "
+                                       "this is a bug, it has been logged"}, status_code=500)
+
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
+    return app
+
+
+__all__ = ["create_app", "SivaService", "ApiError", "UploadTooLarge", "BodyLimitMiddleware",
+           "UnknownRecording"]

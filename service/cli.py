@@ -1,0 +1,54 @@
+"""`siva serve` and `siva replay`: argument handling only, the work lives elsewhere."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("siva.service")
+
+
+def serve_command(args: argparse.Namespace) -> int:
+    """Run the service on uvicorn until SIGINT/SIGTERM (workers checkpoint on the way out).
+
+    Settings come from ``SIVA_*`` environment variables; ``--data-dir`` overrides
+    ``SIVA_DATA_DIR`` only when given explicitly on the command line or when the variable
+    is unset.
+    """
+    import os
+
+    import uvicorn
+
+    from .app import create_app
+    from .settings import Settings
+
+    logging.basicConfig(level=os.environ.get("SIVA_LOG_LEVEL", "INFO").upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    data_dir = args.data_dir
+    if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
+        data_dir = None  # the parser's default: let the environment decide
+    settings = Settings.from_env(data_dir=data_dir)
+    app = create_app(settings)
+    if getattr(args, "demo", False):
+        _start_demo(args.host, args.port, settings)
+    log.info("siva serve on http://%s:%d (data dir %s, auth %s)", args.host, args.port,
+             Path(settings.data_dir).resolve(), "on" if settings.api_token else "off")
+    uvicorn.run(app, host=args.host, port=args.port, log_level="info", access_log=False)
+    return 0
+
+
+def _start_demo(host: str, port: int, settings: Any) -> None:
+    """Feed the built-in simulated rig to this server over HTTP, like any client would."""
+    from . import demo  # written with the MCAP/replay/demo part of the service
+
+    base = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}"
+    demo.start_demo(base, token=settings.api_token)  # a daemon thread; waits for /healthz
+
+
+def replay_command(args: argparse.Namespace) -> int:
+    """Re-run a service MCAP log and write the final estimate (shape of GET .../estimate)."""
+    from .replay import write_replay
+
+    write_replay(args.log, getattr(args, "out", None))
+    return 0

@@ -1,0 +1,464 @@
+"""Event logs of the service: one MCAP file per system per process start.
+
+Why MCAP: the log is both the audit trail of a running identification (what arrived, when,
+and what the service estimated) and the input of ``siva replay``, so it must be a standard,
+self-describing container that outside tools (``mcap info``, Foxglove) open.
+
+Layout: ``<data>/logs/<system>/<UTC start time>-<pid>.mcap``.  Topics (message encoding
+``json``, schema encoding ``jsonschema``, schemas generated from the pydantic models below):
+
+- ``/siva/spec``       :class:`SpecEvent` - the model spec (+ trainer settings, e.g. seed)
+- ``/siva/recording``  :class:`RecordingEvent` - one accepted recording: the uploaded bytes
+  exactly as received (base64), their format, role, and the training epoch at arrival
+- ``/siva/dataset``    :class:`DatasetEvent` - (optional) the moment the trainer's data set
+  changed: the epoch and the recording ids in use; replay prefers it over arrival epochs
+- ``/siva/snapshot``   :class:`SnapshotEvent` - an estimate as served by GET .../estimate
+
+Recordings are logged as the original bytes (not re-encoded float arrays) so that a replay
+parses exactly what the live service parsed - bit-identical states - and the file stays
+compact: every message is its own zstd-compressed chunk, which packs the base64 text back
+to below the size of the raw CSV.
+
+Crash safety: every message is written as one complete chunk, then the file is flushed and
+fsync'ed, so a process killed mid-write loses at most the message being written.  A file
+without footer (the process died) is still readable (:func:`read_events` stops at the last
+complete record) and :func:`recover` rewrites it as a finished file.
+"""
+from __future__ import annotations
+
+import base64
+import hashlib
+import io
+import json
+import logging
+import os
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterator, Literal, Mapping, Sequence
+
+from mcap.exceptions import EndOfFile, McapError
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import MAGIC_SIZE, StreamReader
+from mcap.writer import CompressionType, Writer
+from pydantic import BaseModel, ConfigDict, Field
+
+log = logging.getLogger("siva.mcap_log")
+
+FORMAT_VERSION = "siva-log/1"
+TOPIC_SPEC = "/siva/spec"
+TOPIC_RECORDING = "/siva/recording"
+TOPIC_DATASET = "/siva/dataset"
+TOPIC_SNAPSHOT = "/siva/snapshot"
+MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
+_FOOTER_OPCODE = 0x02
+_FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
+
+
+# ------------------------------------------------------------------------ message models
+class SpecEvent(BaseModel):
+    """The model spec of a system, as registered (CONTRACT.md structure)."""
+
+    system: str
+    spec: dict[str, Any] = Field(description="model spec, the JSON form of the TOML file")
+    settings: dict[str, Any] = Field(default_factory=dict,
+                                     description="trainer settings needed to replay (seed, preset)")
+    wall_time: float = Field(description="UNIX time [s] when logged")
+
+
+class RecordingEvent(BaseModel):
+    """One accepted recording, byte for byte as uploaded."""
+
+    system: str
+    id: str
+    role: Literal["train", "validation"]
+    format: str = Field(description="csv, json, npz or mcap: how to parse `data`")
+    epoch: int = Field(ge=0, description="training epochs completed when it arrived")
+    name: str | None = None
+    size: int = Field(ge=0, description="bytes of the decoded payload")
+    sha256: str
+    data: str = Field(description="the uploaded bytes, base64 (RFC 4648)")
+    wall_time: float
+
+    def payload(self) -> bytes:
+        """The uploaded bytes; checked against the logged hash so corruption is loud."""
+        raw = base64.b64decode(self.data)
+        if hashlib.sha256(raw).hexdigest() != self.sha256:
+            raise ValueError(f"recording {self.id}: payload does not match its sha256")
+        return raw
+
+
+class DatasetEvent(BaseModel):
+    """The trainer's data set changed before training epoch ``epoch + 1``."""
+
+    system: str
+    epoch: int = Field(ge=0, description="epochs completed when the new data set took effect")
+    train: list[str]
+    validation: list[str]
+    processing: dict[str, Any] | None = Field(
+        None, description="the processing chain's settings (siva_core Processing fields)")
+    wall_time: float
+
+
+try:  # the HTTP API's own model, so the log's schema is the one /openapi.json documents
+    from .schemas import Estimate as _Estimate
+except ImportError:  # pragma: no cover - schemas.py is part of the service
+    class _Estimate(BaseModel):  # type: ignore[no-redef]
+        model_config = ConfigDict(extra="allow")
+        parameters: dict[str, dict[str, Any]]
+        discriminator: dict[str, Any]
+        epoch: int
+        converged: bool
+        n_recordings: dict[str, int]
+
+
+class SnapshotEvent(BaseModel):
+    """An estimate as served by GET /v1/systems/{name}/estimate at ``epoch``."""
+
+    system: str
+    epoch: int = Field(ge=0)
+    estimate: _Estimate
+    wall_time: float
+
+    def estimate_dict(self) -> dict[str, Any]:
+        """The logged estimate as plain JSON types (extra keys included)."""
+        return self.estimate.model_dump(mode="json")
+
+
+_TOPICS: dict[str, type[BaseModel]] = {
+    TOPIC_SPEC: SpecEvent,
+    TOPIC_RECORDING: RecordingEvent,
+    TOPIC_DATASET: DatasetEvent,
+    TOPIC_SNAPSHOT: SnapshotEvent,
+}
+
+
+def _schema_bytes(model: type[BaseModel]) -> bytes:
+    return json.dumps(model.model_json_schema(), separators=(",", ":")).encode()
+
+
+# ------------------------------------------------------------------------ writing
+class _SystemLog:
+    """One open MCAP file: writer, channel ids, and the durability step after each message."""
+
+    def __init__(self, path: Path, system: str, metadata: Mapping[str, str]) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(path, "xb")
+        # chunk_size=1: every message closes its own (compressed, CRC'd) chunk immediately,
+        # so nothing sits in a buffer when the process dies.
+        self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
+        self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
+                                           **{k: str(v) for k, v in metadata.items()}})
+        self._channels: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}
+        self._last_time = 0
+        self._sync()
+
+    def _channel(self, topic: str) -> int:
+        if topic not in self._channels:
+            model = _TOPICS[topic]
+            sid = self._writer.register_schema(f"siva.{model.__name__}", "jsonschema",
+                                               _schema_bytes(model))
+            self._channels[topic] = self._writer.register_channel(topic, "json", sid)
+            self._sequence[topic] = 0
+        return self._channels[topic]
+
+    def write(self, topic: str, event: BaseModel) -> None:
+        cid = self._channel(topic)
+        # strictly increasing log times keep log-time order == write order for every reader
+        now = max(time.time_ns(), self._last_time + 1)
+        self._last_time = now
+        self._sequence[topic] += 1
+        self._writer.add_message(cid, log_time=now, publish_time=now,
+                                 sequence=self._sequence[topic],
+                                 data=event.model_dump_json().encode())
+        self._sync()
+
+    def _sync(self) -> None:
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        self._writer.finish()
+        self._sync()
+        self._fh.close()
+
+
+class EventLog:
+    """Append-only MCAP event logs for all systems of one service process.
+
+    Files open lazily, one per system, at the first event of that system in this process.
+    Thread-safe (routes and workers log concurrently).  After :meth:`close`, further events
+    are dropped with a warning rather than raised, so a late worker tick during shutdown
+    cannot crash the service.  ``settings`` (e.g. ``{"seed": 42, "preset": "fast"}``) is
+    written into every spec event and the file metadata, so a replay uses the same trainer.
+    """
+
+    def __init__(self, data_dir: str | Path, *, settings: Mapping[str, Any] | None = None,
+                 recover_unfinished: bool = True) -> None:
+        self.root = Path(data_dir) / "logs"
+        self.settings = dict(settings or {})
+        self._lock = threading.Lock()
+        self._logs: dict[str, _SystemLog] = {}
+        self._closed = False
+        self._started = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+        self.recovered: list[Path] = []
+        if recover_unfinished and self.root.is_dir():
+            # a previous process that died leaves footer-less files: finish them now
+            for p in sorted(self.root.glob("*/*.mcap")):
+                try:
+                    if not is_finished(p) and not _writer_alive(p):
+                        self.recovered.append(recover(p))
+                except (OSError, McapError, ValueError) as exc:
+                    log.warning("cannot recover %s: %s", p, exc)
+
+    # -- public API
+    def path(self, system: str) -> Path | None:
+        """The file of ``system`` in this process, if one was opened."""
+        with self._lock:
+            sl = self._logs.get(system)
+            return sl.path if sl else None
+
+    def log_spec(self, system: str, spec_dict: Mapping[str, Any],
+                 settings: Mapping[str, Any] | None = None) -> None:
+        ev = SpecEvent(system=system, spec=json.loads(json.dumps(dict(spec_dict))),
+                       settings={**self.settings, **(settings or {})}, wall_time=time.time())
+        self._write(system, TOPIC_SPEC, ev)
+
+    def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
+                      epoch: int, name: str | None = None) -> None:
+        raw = bytes(raw_bytes)
+        ev = RecordingEvent(system=system, id=str(rec_id), role=_role(role), format=fmt,
+                            epoch=int(epoch), name=name, size=len(raw),
+                            sha256=hashlib.sha256(raw).hexdigest(),
+                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time())
+        self._write(system, TOPIC_RECORDING, ev)
+
+    def log_dataset(self, system: str, epoch: int, train_ids: Sequence[str],
+                    validation_ids: Sequence[str], processing: Any = None) -> None:
+        """Record that the trainer got a new data set after ``epoch`` completed epochs
+        (and, optionally, the processing chain it was prepared with)."""
+        proc = None
+        if processing is not None:
+            proc = json.loads(json.dumps(processing if isinstance(processing, Mapping)
+                                         else _jsonable(processing), default=_jsonable))
+        ev = DatasetEvent(system=system, epoch=int(epoch), train=[str(i) for i in train_ids],
+                          validation=[str(i) for i in validation_ids], processing=proc,
+                          wall_time=time.time())
+        self._write(system, TOPIC_DATASET, ev)
+
+    def log_snapshot(self, system: str, snapshot_dict: Mapping[str, Any]) -> None:
+        snap = json.loads(json.dumps(dict(snapshot_dict), default=_jsonable))
+        ev = SnapshotEvent(system=system, epoch=int(snap.get("epoch", 0) or 0), estimate=snap,
+                           wall_time=time.time())
+        self._write(system, TOPIC_SNAPSHOT, ev)
+
+    def close(self) -> None:
+        """Finish every file (summary + footer).  Idempotent."""
+        with self._lock:
+            self._closed = True
+            logs, self._logs = self._logs, {}
+        for sl in logs.values():
+            try:
+                sl.close()
+            except OSError as exc:  # the data is already fsync'ed; recover() can finish it
+                log.warning("cannot finish %s: %s", sl.path, exc)
+
+    def __enter__(self) -> "EventLog":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals
+    def _write(self, system: str, topic: str, event: BaseModel) -> None:
+        with self._lock:
+            if self._closed:
+                log.warning("event log closed; dropping %s event of %r", topic, system)
+                return
+            sl = self._logs.get(system)
+            if sl is None:
+                path = self.root / _safe(system) / f"{self._started}-{os.getpid()}.mcap"
+                sl = _SystemLog(path, system, {"started": self._started, "pid": os.getpid(),
+                                               **{f"settings.{k}": v
+                                                  for k, v in self.settings.items()}})
+                self._logs[system] = sl
+            sl.write(topic, event)
+
+
+def _writer_alive(path: Path) -> bool:
+    """Whether the process named in ``<time>-<pid>.mcap`` still runs (do not touch its file)."""
+    pid = path.stem.rpartition("-")[2]
+    if not pid.isdigit() or int(pid) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _role(role: str) -> str:
+    r = (role or "train").lower()
+    return {"val": "validation", "validate": "validation"}.get(r, r)
+
+
+def _safe(system: str) -> str:
+    """A directory name for a system name (names are validated upstream; belt and braces)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in system).lstrip(".") or "_"
+
+
+def _jsonable(x: Any) -> Any:
+    import dataclasses
+
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return dataclasses.asdict(x)
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    if hasattr(x, "model_dump"):
+        return x.model_dump()
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+
+
+# ------------------------------------------------------------------------ reading
+@dataclass
+class LogEvent:
+    """One decoded message: topic, log time [ns] and the typed event."""
+
+    topic: str
+    log_time: int
+    event: SpecEvent | RecordingEvent | DatasetEvent | SnapshotEvent
+
+
+def is_finished(path: str | Path) -> bool:
+    """True when the file ends with a footer and the closing magic (a clean ``close()``)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, io.SEEK_END)
+        size = fh.tell()
+        if size < 2 * MAGIC_SIZE + _FOOTER_RECORD:
+            return False
+        fh.seek(size - MAGIC_SIZE - _FOOTER_RECORD)
+        tail = fh.read()
+    return tail[-MAGIC_SIZE:] == MAGIC and tail[0] == _FOOTER_OPCODE
+
+
+def _complete_prefix(raw: bytes) -> int:
+    """Byte length of the leading run of complete, parseable records (after the magic).
+
+    Record framing is checked by hand (opcode + length must fit in the file; opcode 0 - what
+    a crash leaves in pre-allocated space - ends the data) and each record is then parsed
+    by mcap's own stream reader, with CRC checks, so a torn last chunk is cut off.
+    """
+    if raw[:MAGIC_SIZE] != MAGIC:
+        raise McapError("not an MCAP file (bad magic)")
+    pos = MAGIC_SIZE
+    n = len(raw)
+    while pos + 9 <= n:
+        opcode = raw[pos]
+        (length,) = struct.unpack_from("<Q", raw, pos + 1)
+        end = pos + 9 + length
+        if opcode == 0 or end > n:
+            break
+        try:
+            for _ in StreamReader(io.BytesIO(raw[pos:end]), skip_magic=True,
+                                  validate_crcs=True).records:
+                pass
+        except EndOfFile:
+            pass
+        except Exception:  # noqa: BLE001 - any unparseable record ends the good data
+            break
+        pos = end
+        if opcode == _FOOTER_OPCODE:
+            break
+    return pos
+
+
+def iter_raw(path: str | Path) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """(schema, channel, message) in file order; tolerant of a missing footer."""
+    raw = Path(path).read_bytes()
+    end = _complete_prefix(raw)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    reader = StreamReader(io.BytesIO(raw[:end]), skip_magic=False)
+    try:
+        for rec in reader.records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Message) and rec.channel_id in channels:
+                ch = channels[rec.channel_id]
+                yield schemas.get(ch.schema_id), ch, rec
+    except EndOfFile:
+        return
+
+
+def read_events(path: str | Path) -> list[LogEvent]:
+    """All siva events of a log in the order they were written (unknown topics skipped)."""
+    out: list[LogEvent] = []
+    for _schema, ch, msg in iter_raw(path):
+        model = _TOPICS.get(ch.topic)
+        if model is None:
+            continue
+        out.append(LogEvent(ch.topic, msg.log_time, model.model_validate_json(msg.data)))
+    return out
+
+
+# ------------------------------------------------------------------------ recovery
+def recover(path: str | Path) -> Path:
+    """Finish an unfinished log: keep every complete record, add summary and footer.
+
+    The original is kept next to it as ``<name>.partial``; the returned path (the original
+    name) is a finished MCAP file.  A file that is already finished is returned unchanged.
+    """
+    path = Path(path)
+    if is_finished(path):
+        return path
+    raw = path.read_bytes()
+    end = _complete_prefix(raw)
+    records = []
+    try:
+        for rec in StreamReader(io.BytesIO(raw[:end])).records:
+            records.append(rec)
+    except EndOfFile:
+        pass
+    tmp = path.with_name(path.name + ".recovering")
+    with open(tmp, "wb") as fh:
+        w = Writer(fh, chunk_size=1, compression=CompressionType.ZSTD)
+        w.start(profile="", library=f"siva ({FORMAT_VERSION}, recovered)")
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        schemas: dict[int, Schema] = {}
+        for rec in records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Channel):
+                sid = 0
+                if rec.schema_id:
+                    if rec.schema_id not in schema_ids:
+                        s = schemas[rec.schema_id]
+                        schema_ids[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
+                    sid = schema_ids[rec.schema_id]
+                channel_ids[rec.id] = w.register_channel(rec.topic, rec.message_encoding, sid,
+                                                         dict(rec.metadata))
+            elif isinstance(rec, Message) and rec.channel_id in channel_ids:
+                w.add_message(channel_ids[rec.channel_id], log_time=rec.log_time,
+                              publish_time=rec.publish_time, sequence=rec.sequence,
+                              data=rec.data)
+        w.add_metadata("siva.recovery", {"from": path.name + ".partial",
+                                         "bytes_kept": str(end), "bytes_total": str(len(raw))})
+        w.finish()
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(path, path.with_name(path.name + ".partial"))
+    os.replace(tmp, path)
+    return path

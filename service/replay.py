@@ -1,0 +1,349 @@
+"""`siva replay LOG.mcap`: re-run what a service event log recorded, offline.
+
+Why: an estimate the service published should be reproducible by anyone holding the log -
+to audit it, to re-run it with a fixed bug, or to reproduce a drift alarm.  The service is
+deterministic given (spec, trainer preset and seed, the data set used at each epoch), and
+the log holds all three, so a replay reproduces the live estimate exactly, not merely within
+the ensemble's spread (tests/service/test_replay.py checks this on checked-in logs).
+
+How: the spec event rebuilds the Structure; a fresh trainer (the service's own factory,
+preset and seed from the log) is trained epoch by epoch; at each ``/siva/dataset`` event
+(the epoch at which the live trainer's data set changed and the recording ids it used) the
+same recordings are parsed from their logged bytes, processed with the service's own chain
+and passed to ``set_data``; training stops at the epoch of the last snapshot, and the
+estimate is read out with the service's own code (``worker.estimate_view``).
+
+Several logs of one system (one per process start) replay as one run: pass them all, or
+their directory.  A process that resumed from a checkpoint at epoch E logs its first data
+set at E, so the replay runs the earlier log to E and continues with the later one - the
+trainer state at E is the one the checkpoint held.  A later log starting at epoch 0 means
+the service started over from scratch (no checkpoint): so does the replay.
+
+Logs without dataset events (written by something other than the service's worker) fall
+back to what the brief of the log format promises: recordings join at their arrival epoch,
+train and validation by role, all of them - an approximation of the service's buffer.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from .mcap_log import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC, LogEvent,
+                       RecordingEvent, SnapshotEvent, SpecEvent, read_events)
+
+
+class ReplayError(ValueError):
+    """A log that cannot be replayed; the message says what is missing and where."""
+
+
+@dataclass
+class _Segment:
+    """The events of one log file (one process start)."""
+
+    path: Path
+    events: list[LogEvent]
+
+    def of(self, topic: str) -> list[Any]:
+        return [e.event for e in self.events if e.topic == topic]
+
+
+@dataclass
+class _DataSet:
+    """Before epoch ``epoch + 1`` the trainer got these records, prepared with ``processing``
+    (Processing fields; None: choose it as the worker does)."""
+
+    epoch: int
+    train: list[str]
+    validation: list[str]
+    processing: dict[str, Any] | None = None
+
+
+@dataclass
+class _Plan:
+    spec: SpecEvent
+    recordings: dict[str, RecordingEvent]
+    # data-set changes in the order applied, after resume stitching
+    datasets: list["_DataSet"]
+    restarts: list[int]                      # indices into datasets where training restarts
+    final_epoch: int
+    final_snapshot: SnapshotEvent | None
+    counts: dict[str, int]
+    files: list[str] = field(default_factory=list)
+    exact: bool = True
+
+
+def log_files(path: str | Path | Sequence[str | Path]) -> list[Path]:
+    """The log files to replay: a file, several files, or a directory of one system."""
+    if isinstance(path, (str, Path)):
+        p = Path(path)
+        if p.is_dir():
+            files = sorted(q for q in p.glob("*.mcap"))
+            if not files:
+                raise ReplayError(f"{p}: no .mcap logs in this folder")
+            return files
+        if not p.exists():
+            raise ReplayError(f"{p}: no such log file")
+        return [p]
+    files = [Path(x) for x in path]
+    for f in files:
+        if not f.exists():
+            raise ReplayError(f"{f}: no such log file")
+    return sorted(files, key=lambda f: f.name)
+
+
+def _plan(files: Sequence[Path]) -> _Plan:
+    segments = [_Segment(f, read_events(f)) for f in files]
+    spec: SpecEvent | None = None
+    recordings: dict[str, RecordingEvent] = {}
+    systems: set[str] = set()
+    for seg in segments:
+        systems.update(e.event.system for e in seg.events)
+        for ev in seg.of(TOPIC_SPEC):
+            if spec is not None and ev.spec != spec.spec:
+                raise ReplayError(f"{seg.path}: the spec of {ev.system!r} changed between logs "
+                                  "(a re-created system): replay its logs since then only")
+            spec = ev
+        for ev in seg.of(TOPIC_RECORDING):
+            recordings.setdefault(ev.id, ev)
+    if len(systems) > 1:
+        raise ReplayError(f"logs of several systems {sorted(systems)}: replay one at a time")
+    if spec is None:
+        raise ReplayError(f"{', '.join(str(f) for f in files)}: no /siva/spec event "
+                          "(pass the system's earlier logs too, or its log folder)")
+
+    datasets: list[_DataSet] = []
+    restarts: list[int] = [0]
+    final_snap: SnapshotEvent | None = None
+    exact = any(seg.of(TOPIC_DATASET) for seg in segments)
+    if not exact:  # not written by the service's worker: arrival epochs, all records
+        datasets = _arrival_datasets(
+            [r for seg in segments for r in seg.of(TOPIC_RECORDING)])
+        snaps = [s for seg in segments for s in seg.of(TOPIC_SNAPSHOT)]
+        final_snap = snaps[-1] if snaps else None
+    for seg in segments if exact else []:
+        seg_sets = _segment_datasets(seg)
+        snaps = seg.of(TOPIC_SNAPSHOT)
+        if seg_sets:
+            start = seg_sets[0].epoch
+            if not datasets and start > 0:
+                raise ReplayError(f"{seg.path}: the service resumed from a checkpoint at epoch "
+                                  f"{start}; pass the earlier logs of this system too "
+                                  "(e.g. its log folder)")
+            if start == 0 and datasets:
+                restarts.append(len(datasets))  # that process started from scratch
+            else:
+                # resumed at `start` from a checkpoint: what the earlier process did from
+                # `start` on is superseded (its checkpoint was taken before those changes)
+                while len(datasets) > restarts[-1] and datasets[-1].epoch >= start:
+                    datasets.pop()
+            datasets.extend(seg_sets)
+            final_snap = None  # a snapshot of an earlier process describes a superseded run
+        if snaps:
+            final_snap = snaps[-1]
+    if final_snap is not None:
+        final_epoch = final_snap.epoch
+    else:
+        final_epoch = max((d.epoch for d in datasets[restarts[-1]:]), default=0)
+    counts: dict[str, int] = {"train": 0, "validation": 0}
+    for r in recordings.values():
+        counts[r.role] = counts.get(r.role, 0) + 1
+    if final_snap is not None:
+        counts = {k: int(v) for k, v in final_snap.estimate.n_recordings.items()}
+    return _Plan(spec, recordings, datasets, restarts, final_epoch, final_snap, counts,
+                 [str(f) for f in files], exact)
+
+
+def _segment_datasets(seg: _Segment) -> list[_DataSet]:
+    """The data-set changes of one log, each with the processing chain it used: logged with
+    the event, else the one the next snapshot on the same records reports (``data``)."""
+    out: list[_DataSet] = []
+    for k, le in enumerate(seg.events):
+        if le.topic != TOPIC_DATASET:
+            continue
+        d = le.event
+        proc = d.processing
+        if proc is None:
+            for later in seg.events[k + 1:]:
+                if later.topic == TOPIC_DATASET:
+                    break
+                if later.topic == TOPIC_SNAPSHOT:
+                    data = later.event.estimate_dict().get("data") or {}
+                    if data.get("train") == d.train and data.get("validation") == d.validation:
+                        proc = data.get("processing")
+                        break
+        out.append(_DataSet(d.epoch, list(d.train), list(d.validation), proc))
+    return out
+
+
+def _arrival_datasets(recs: Iterable[RecordingEvent]) -> list[_DataSet]:
+    """Fallback: every recording joins at its arrival epoch, once both roles exist."""
+    out: list[_DataSet] = []
+    train: list[str] = []
+    val: list[str] = []
+    for r in recs:
+        (train if r.role == "train" else val).append(r.id)
+        if train and val:
+            if out and out[-1].epoch == r.epoch:
+                out[-1] = _DataSet(r.epoch, list(train), list(val))
+            else:
+                out.append(_DataSet(r.epoch, list(train), list(val)))
+    return out
+
+
+def _tuples(v: Any) -> Any:
+    """JSON lists back to the tuples the Processing dataclass holds (bandpass, notch)."""
+    return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
+
+
+def _service_settings(spec: SpecEvent) -> Any:
+    from .settings import Settings
+
+    s = spec.settings
+    kw: dict[str, Any] = {}
+    if "seed" in s:
+        kw["seed"] = int(s["seed"])
+    if "preset" in s:
+        kw["preset"] = str(s["preset"])
+    return Settings(**kw)
+
+
+class _Replayer:
+    """The service's data path for one system, driven by the plan instead of HTTP."""
+
+    def __init__(self, plan: _Plan, trainer_factory: Any = None) -> None:
+        from siva_core import Structure
+
+        from .worker import default_trainer
+
+        self.plan = plan
+        self.structure = Structure.from_dict(plan.spec.spec)
+        self.settings = _service_settings(plan.spec)
+        self.factory = trainer_factory or default_trainer
+        self._recs: dict[str, Any] = {}
+
+    def recording(self, rid: str) -> Any:
+        from siva_core._impl.recording import Recording
+
+        if rid not in self._recs:
+            ev = self.plan.recordings.get(rid)
+            if ev is None:
+                raise ReplayError(f"recording {rid!r} was used for training but is not in the "
+                                  "log(s): pass the system's earlier logs too (its log folder)")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                self._recs[rid] = Recording.read(ev.payload(), self.structure.dofs, name=rid,
+                                                 fmt=ev.format)
+        return self._recs[rid]
+
+    def states(self, ds: _DataSet) -> tuple[list[Any], list[Any]]:
+        """Exactly the worker's refresh: the logged chain (or one chosen, as the worker
+        does, on all selected records) applied to each record."""
+        from siva_core._impl.processing import Processing
+
+        from .worker import processing_for
+
+        train, val = ds.train, ds.validation
+        recs = [self.recording(i) for i in train + val]
+        if ds.processing is not None:
+            fields = {f.name for f in dataclasses.fields(Processing) if f.compare}
+            proc = Processing(**{k: _tuples(v) for k, v in ds.processing.items() if k in fields})
+        else:
+            try:
+                proc = processing_for(recs, self.structure.dofs)
+            except Exception:  # noqa: BLE001 - the worker falls back the same way
+                proc = Processing()
+        st = {r.name: proc.apply(r, self.structure.dofs) for r in recs}
+        return [st[i] for i in train], [st[i] for i in val]
+
+    def run(self) -> tuple[Any, Any]:
+        """Train to the final epoch; returns (trainer, last EpochLog or None)."""
+        plan = self.plan
+        trainer = None
+        last_log = None
+        bounds = plan.restarts + [len(plan.datasets)]
+        for k in range(len(plan.restarts)):
+            block = plan.datasets[bounds[k]:bounds[k + 1]]
+            if not block:
+                continue
+            trainer = self.factory(self.structure, self.settings)
+            last_log = None
+            for ds in block:
+                while trainer.epoch < ds.epoch:
+                    last_log = trainer.run_epoch()
+                trainer.set_data(*self.states(ds))
+        if trainer is not None:
+            while trainer.epoch < plan.final_epoch:
+                last_log = trainer.run_epoch()
+        return trainer, last_log
+
+
+def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None
+           ) -> dict[str, Any]:
+    """Re-run the log(s) and return the final estimate in the shape of GET .../estimate.
+
+    Extra key ``replay``: the files, the epochs trained, and how the result compares with
+    the last snapshot the live service logged (``max_diff_in_std``: the largest difference
+    of a parameter mean, in units of that parameter's std; 0 when identical).
+    """
+    from .worker import SystemWorker, estimate_view, jsonable
+
+    files = log_files(path)
+    plan = _plan(files)
+    rp = _Replayer(plan, trainer_factory)
+    trainer, _last = rp.run()
+    if trainer is None:
+        raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
+                          "both a train and a validation recording)")
+    shim = types.SimpleNamespace(structure=rp.structure, trainer=trainer)
+    params, source = SystemWorker._estimate(shim)  # the service's own read-out
+    disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
+    snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
+            "epoch": int(trainer.epoch), "converged": bool(trainer.converged),
+            "system": plan.spec.system}
+    out = jsonable(estimate_view(snap, plan.counts))
+    out["replay"] = jsonable({
+        "files": plan.files, "epochs": int(trainer.epoch),
+        "data_changes": len(plan.datasets), "exact": plan.exact,
+        "settings": plan.spec.settings,
+        "compared_to_log": _compare(out, plan.final_snapshot),
+    })
+    return out
+
+
+def _compare(out: dict[str, Any], snap: SnapshotEvent | None) -> dict[str, Any] | None:
+    if snap is None:
+        return None
+    logged = snap.estimate_dict().get("parameters") or {}
+    worst = 0.0
+    identical = snap.epoch == out["epoch"]
+    for p, s in out["parameters"].items():
+        ref = logged.get(p)
+        if not ref or ref.get("mean") is None or s.get("mean") is None:
+            identical = False
+            continue
+        d = abs(float(s["mean"]) - float(ref["mean"]))
+        identical &= d == 0.0 and s.get("std") == ref.get("std")
+        std = max(float(ref.get("std") or 0.0), 1e-300)
+        worst = max(worst, d / std if d else 0.0)
+    return {"epoch": snap.epoch, "identical": bool(identical),
+            "max_diff_in_std": worst if math.isfinite(worst) else None}
+
+
+def write_replay(log: str | Path, out: str | Path | None = None) -> dict[str, Any]:
+    """``siva replay LOG [--out FILE]``: JSON to ``out`` or stdout (used by service.cli)."""
+    import json
+    import sys
+
+    result = replay(log)
+    text = json.dumps(result, indent=2)
+    if out:
+        Path(out).write_text(text + "\n")
+    else:
+        sys.stdout.write(text + "\n")
+    return result
+

@@ -1,0 +1,341 @@
+"""HTTP routes (prefix /v1, CONTRACT.md).  Handlers only parse, check and delegate.
+
+Anything that touches the disk (fsync) or parses a recording runs in the thread pool, and
+reads return the worker's latest published snapshot, so no route ever waits for training.
+"""
+from __future__ import annotations
+
+import hmac
+import json
+import tomllib
+from typing import Any
+
+from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+
+from .app import ApiError, SivaService, UploadTooLarge
+from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
+                      RecordingList, SystemAck, SystemList, SystemSpec)
+from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
+from .worker import estimate_view
+
+router = APIRouter()
+
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorDetail, "description": text} for code, text in {
+        401: "a write without the bearer token (when SIVA_API_TOKEN is set)",
+        404: "unknown system or recording",
+        409: "conflicting spec or role",
+        413: "body above SIVA_MAX_UPLOAD_BYTES",
+        415: "unsupported content type",
+        422: "invalid spec, recording or parameter; the detail names what and where",
+    }.items()}
+
+CONTENT_FORMATS = {
+    "text/csv": "csv", "application/csv": "csv", "text/plain": "csv",
+    "application/json": "json", "text/json": "json",
+    "application/x-npz": "npz", "application/npz": "npz",
+    "application/x-mcap": "mcap", "application/mcap": "mcap",
+}
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def service_of(request: Request) -> SivaService:
+    return request.app.state.service
+
+
+def require_token(request: Request) -> None:
+    """Writes need ``Authorization: Bearer <SIVA_API_TOKEN>`` when the token is set."""
+    token = request.app.state.settings.api_token
+    if not token:
+        return
+    auth = request.headers.get("authorization", "")
+    scheme, _, given = auth.partition(" ")
+    if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), token.encode()):
+        what = "missing" if not auth else "wrong or malformed"
+        raise ApiError(401, f"Authorization header {what}: writes need "
+                            "'Authorization: Bearer <SIVA_API_TOKEN>'",
+                       headers={"WWW-Authenticate": "Bearer"})
+
+
+def check_name(name: str) -> str:
+    if not NAME_RE.match(name):
+        raise ApiError(422, f"system name {name!r}: use 1-64 letters, digits, '_', '.' or '-', "
+                            "starting with a letter or digit")
+    return name
+
+
+def _media_type(request: Request) -> str:
+    return request.headers.get("content-type", "").split(";")[0].strip().lower()
+
+
+# --------------------------------------------------------------------------- health, systems
+@router.get("/healthz", response_model=Health, tags=["service"])
+async def healthz(request: Request) -> dict[str, Any]:
+    svc = service_of(request)
+    return {"status": "ok", "systems": len(svc.workers),
+            "workers_alive": sum(w.alive for w in list(svc.workers.values()))}
+
+
+@router.get("/v1/systems", response_model=SystemList, tags=["systems"])
+async def list_systems(request: Request) -> dict[str, Any]:
+    svc = service_of(request)
+    out = []
+    for name, w in sorted(list(svc.workers.items())):
+        snap = w.snapshot()
+        try:
+            counts = svc.store.counts(name)
+        except UnknownSystem:
+            continue
+        out.append({"name": name, "state": snap.get("state"), "epoch": snap.get("epoch", 0),
+                    "converged": snap.get("converged", False), "n_recordings": counts,
+                    "active_alarms": [a["parameter"] for a in snap.get("alarms", [])]})
+    for name, why in sorted(svc.broken.items()):
+        out.append({"name": name, "state": "invalid_spec", "epoch": 0, "converged": False,
+                    "n_recordings": svc.store.counts(name), "active_alarms": [], "error": why})
+    return {"systems": out}
+
+
+@router.put("/v1/systems/{name}", tags=["systems"], status_code=201,
+            response_model=SystemAck,
+            responses={200: {"model": SystemAck, "description": "the same spec was already there"},
+                       **_ERRORS},
+            openapi_extra={"requestBody": {"required": True, "content": {
+                "application/json": {"schema": SystemSpec.model_json_schema()},
+                "application/toml": {"schema": {"type": "string"}}}}},
+            dependencies=[Depends(require_token)])
+async def put_system(name: str, request: Request) -> Response:
+    """Register a system with its model spec (JSON; TOML accepted as application/toml)."""
+    check_name(name)
+    raw = await request.body()
+    media = _media_type(request)
+    if media in ("application/toml", "text/toml", "application/x-toml"):
+        try:
+            spec = tomllib.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise ApiError(400, f"request body: invalid TOML ({exc})") from None
+    elif media in ("", "application/json", "text/json"):
+        spec = _json_body(raw)
+    else:
+        raise ApiError(415, f"Content-Type {media!r}: send the spec as application/json "
+                            "(or application/toml)")
+    svc = service_of(request)
+    created, structure = await run_in_threadpool(svc.put_system, name, spec)
+    body = {"name": name, "created": created, "dofs": structure.dofs,
+            "free_parameters": structure.free, "spec": svc.store.spec(name)}
+    return JSONResponse(body, status_code=201 if created else 200)
+
+
+def _json_body(raw: bytes) -> Any:
+    if not raw.strip():
+        raise ApiError(400, "request body is empty: expected the model spec as JSON")
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise ApiError(400, f"request body: invalid JSON at line {exc.lineno}, column "
+                            f"{exc.colno}: {exc.msg}") from None
+    except (UnicodeDecodeError, RecursionError) as exc:
+        raise ApiError(400, f"request body: not readable JSON ({type(exc).__name__})") from None
+
+
+@router.get("/v1/systems/{name}", tags=["systems"], responses=_ERRORS)
+async def get_system(name: str, request: Request) -> dict[str, Any]:
+    svc = service_of(request)
+    w = svc.worker(name)
+    snap = w.snapshot()
+    return {"name": name, "spec": svc.store.spec(name), "dofs": w.structure.dofs,
+            "free_parameters": w.structure.free, "state": snap.get("state"),
+            "epoch": snap.get("epoch", 0), "converged": snap.get("converged", False),
+            "n_recordings": svc.counts(name)}
+
+
+@router.delete("/v1/systems/{name}", tags=["systems"], responses=_ERRORS,
+               dependencies=[Depends(require_token)])
+async def delete_system(name: str, request: Request) -> dict[str, Any]:
+    """Stop the worker and remove the system with all its recordings (irreversible)."""
+    check_name(name)
+    await run_in_threadpool(service_of(request).delete_system, name)
+    return {"deleted": name}
+
+
+# --------------------------------------------------------------------------- recordings
+@router.post("/v1/systems/{name}/recordings", tags=["recordings"], status_code=202,
+             response_model=RecordingAck, responses=_ERRORS,
+             openapi_extra={"requestBody": {"required": True, "content": {
+                 "text/csv": {"schema": {"type": "string"}},
+                 "application/json": {"schema": {"type": "object", "description":
+                                                 '{"time": [...], "acc_x": [...], ...}'}},
+                 "multipart/form-data": {"schema": {"type": "object", "properties": {
+                     "file": {"type": "string", "format": "binary"}}}},
+                 "application/x-mcap": {"schema": {"type": "string", "format": "binary"}},
+                 "application/x-npz": {"schema": {"type": "string", "format": "binary"}}}}},
+             dependencies=[Depends(require_token)])
+async def post_recording(
+    name: str, request: Request,
+    role: str | None = Query(None, description="train | validation; omitted: the automatic "
+                                               "split (docs/service.md)"),
+    format: str | None = Query(None, description="csv | json | npz | mcap; default from the "
+                                                 "Content-Type or file name"),
+    filename: str | None = Query(None, alias="name",
+                                 description="a name for the record, used in messages"),
+) -> Response:
+    """Upload one recording; 202 only once it is durably stored (temp, fsync, rename)."""
+    svc = service_of(request)
+    svc.worker(name)  # 404 before reading a body for nothing
+    role = _role(role)
+    fmt = _format(format) if format else None
+    media = _media_type(request)
+    if media == "multipart/form-data":
+        raw, part_name, part_type, form_role = await _multipart(request)
+        filename = filename or part_name
+        role = role or _role(form_role)
+        fmt = fmt or _format_of(part_type, part_name, raw)
+    else:
+        if media and media not in CONTENT_FORMATS and media != "application/octet-stream":
+            raise ApiError(415, f"Content-Type {media!r} is not a recording format (text/csv, "
+                                "application/json, multipart/form-data, application/x-mcap, "
+                                "application/x-npz)")
+        raw = await request.body()
+        fmt = fmt or _format_of(media, filename, raw)
+    filename = filename or f"upload.{fmt}"
+    if not raw:
+        raise ApiError(422, f"{filename}: empty body, expected a recording")
+    ack = await run_in_threadpool(svc.add_recording, name, raw, role=role, fmt=fmt,
+                                  filename=filename)
+    return JSONResponse(ack, status_code=202)
+
+
+def _role(role: Any) -> str | None:
+    if role is None or role == "":
+        return None
+    r = str(role).strip().lower()
+    r = {"val": "validation", "valid": "validation", "training": "train"}.get(r, r)
+    if r not in ("train", "validation"):
+        raise ApiError(422, f"query parameter role={role!r}: must be 'train' or 'validation' "
+                            "(or omitted for the automatic split)")
+    return r
+
+
+def _format(fmt: str) -> str:
+    f = fmt.strip().lower().lstrip(".")
+    if f not in FORMATS:
+        raise ApiError(422, f"query parameter format={fmt!r}: must be one of {', '.join(FORMATS)}")
+    return f
+
+
+def _format_of(media: str | None, filename: str | None, raw: bytes) -> str:
+    """Format from the Content-Type, else the file suffix, else sniffing the bytes."""
+    if media and media in CONTENT_FORMATS:
+        return CONTENT_FORMATS[media]
+    if filename and "." in filename:
+        suffix = filename.rsplit(".", 1)[1].lower()
+        if suffix in FORMATS:
+            return suffix
+        if suffix == "txt":
+            return "csv"
+    if raw.startswith(MCAP_MAGIC):
+        return "mcap"
+    if raw.startswith(b"PK\x03\x04"):
+        return "npz"
+    if raw.lstrip()[:1] == b"{":
+        return "json"
+    return "csv"
+
+
+async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, Any]:
+    try:
+        form = await request.form()
+    except (ApiError, UploadTooLarge):
+        raise
+    except Exception as exc:  # noqa: BLE001 - a malformed multipart body is a user error
+        raise ApiError(400, f"multipart body: cannot parse ({exc})") from None
+    try:
+        files = [v for v in form.values() if isinstance(v, UploadFile)]
+        if len(files) != 1:
+            raise ApiError(422, f"multipart body: expected exactly one file part (field "
+                                f"'file'), got {len(files)}")
+        part = files[0]
+        raw = await part.read()
+        ctype = (part.content_type or "").split(";")[0].strip().lower() or None
+        if ctype == "application/octet-stream":
+            ctype = None
+        return raw, part.filename, ctype, form.get("role")
+    finally:
+        await form.close()
+
+
+@router.get("/v1/systems/{name}/recordings", tags=["recordings"], response_model=RecordingList,
+            responses=_ERRORS)
+async def list_recordings(name: str, request: Request) -> dict[str, Any]:
+    svc = service_of(request)
+    w = svc.worker(name)
+    data = w.snapshot().get("data", {})
+    in_mem = set(data.get("train", [])) | set(data.get("validation", []))
+    try:
+        metas = svc.store.recordings(name)
+    except UnknownSystem as exc:
+        raise ApiError(404, str(exc)) from None
+    return {"system": name, "n_recordings": svc.counts(name),
+            "recordings": [{**m.to_dict(), "in_memory": m.id in in_mem} for m in metas]}
+
+
+@router.get("/v1/systems/{name}/recordings/{rid}", tags=["recordings"],
+            response_model=RecordingInfo, responses=_ERRORS)
+async def get_recording(name: str, rid: str, request: Request) -> dict[str, Any]:
+    svc = service_of(request)
+    w = svc.worker(name)
+    try:
+        meta = svc.store.recording(name, rid)
+    except (UnknownSystem, UnknownRecording) as exc:
+        raise ApiError(404, str(exc)) from None
+    data = w.snapshot().get("data", {})
+    return {**meta.to_dict(),
+            "in_memory": meta.id in set(data.get("train", [])) | set(data.get("validation", []))}
+
+
+@router.get("/v1/systems/{name}/recordings/{rid}/raw", tags=["recordings"], responses=_ERRORS)
+async def get_recording_raw(name: str, rid: str, request: Request) -> Response:
+    """The stored bytes, exactly as uploaded."""
+    svc = service_of(request)
+    svc.worker(name)
+    try:
+        meta = svc.store.recording(name, rid)
+        raw = await run_in_threadpool(svc.store.read_raw, name, meta)
+    except (UnknownSystem, UnknownRecording) as exc:
+        raise ApiError(404, str(exc)) from None
+    media = {v: k for k, v in reversed(list(CONTENT_FORMATS.items()))}.get(meta.fmt,
+                                                                         "application/octet-stream")
+    return Response(raw, media_type=media, headers={"X-Sha256": meta.sha256})
+
+
+# --------------------------------------------------------------------------- estimate, drift
+@router.get("/v1/systems/{name}/estimate", tags=["estimate"], response_model=Estimate,
+            responses=_ERRORS)
+async def get_estimate(name: str, request: Request) -> dict[str, Any]:
+    """The latest published estimate (never waits for training)."""
+    svc = service_of(request)
+    w = svc.worker(name)
+    return estimate_view(w.snapshot(), svc.counts(name))
+
+
+@router.get("/v1/systems/{name}/drift", tags=["estimate"], response_model=DriftReport,
+            responses=_ERRORS)
+async def get_drift(name: str, request: Request,
+                    limit: int | None = Query(None, ge=1, description="last N snapshots only")
+                    ) -> dict[str, Any]:
+    """History of snapshots (recent means, intervals, modal quantities) and alarms."""
+    w = service_of(request).worker(name)
+    report = w.drift_report()
+    hist = report["history"] if limit is None else report["history"][-limit:]
+    return {"system": name, **report, "history": hist}
+
+
+@router.post("/v1/systems/{name}/drift/reset", tags=["estimate"], response_model=DriftReport,
+             responses=_ERRORS, dependencies=[Depends(require_token)])
+async def reset_drift(name: str, request: Request) -> dict[str, Any]:
+    """Forget the drift reference and alarms (e.g. after a repair); history is kept."""
+    w = service_of(request).worker(name)
+    report = await run_in_threadpool(w.reset_drift)
+    return {"system": name, **report}

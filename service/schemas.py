@@ -1,0 +1,141 @@
+"""Pydantic models of the HTTP API: what /openapi.json documents and responses follow.
+
+The contract fixes some keys and lets us add more, so every response model allows extra
+keys (``extra="allow"``); the spec body is validated by ``Structure.from_dict``, whose
+messages name what and where, so ``SystemSpec`` only documents its shape.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Open(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+class SystemSpec(_Open):
+    """The model spec: the JSON form of the TOML of CONTRACT.md (validated by siva_core)."""
+
+    name: str | None = Field(None, description="model name (the URL names the system)")
+    dofs: list[str] = Field(description="degree-of-freedom names")
+    mass: dict[str, float] = Field(description="kg per DOF")
+    elements: list[dict[str, Any]] = Field(
+        description='[{"kind": ..., "between": [dof, dof|"ground"], "params": {coef: name}}]')
+    parameters: dict[str, dict[str, float]] | None = Field(
+        None, description="per-parameter settings: scale, fixed, lower, upper")
+    forces: dict[str, Any] | None = Field(None, description="force gains per DOF")
+
+
+class SystemAck(_Open):
+    name: str
+    created: bool
+    dofs: list[str]
+    free_parameters: list[str]
+    spec: dict[str, Any]
+
+
+class RecordingAck(_Open):
+    """202 body: sent only once the recording is durably stored."""
+
+    id: str
+    role: Literal["train", "validation"]
+    role_source: Literal["explicit", "auto"]
+    index: int
+    sha256: str
+    duplicate: bool = Field(description="true when these exact bytes were already stored")
+    warnings: list[str] = []
+
+
+class RecordingInfo(_Open):
+    id: str
+    index: int
+    role: Literal["train", "validation"]
+    role_source: str
+    sha256: str
+    fmt: str
+    filename: str
+    bytes: int
+    n_samples: int
+    fs: float
+    duration_s: float
+    columns: list[str]
+    received_at: float
+    in_memory: bool = Field(description="held in the replay buffer (used for training now)")
+
+
+class RecordingList(_Open):
+    system: str
+    recordings: list[RecordingInfo]
+    n_recordings: dict[str, int]
+
+
+class ParameterSummary(_Open):
+    mean: float | None
+    std: float | None
+    ci95: list[float | None] | None
+
+
+class Estimate(_Open):
+    """GET .../estimate: the contract keys, plus state, modal, losses, data, alarms..."""
+
+    parameters: dict[str, ParameterSummary]
+    discriminator: dict[str, Any]
+    epoch: int
+    converged: bool
+    n_recordings: dict[str, int]
+
+
+class Alarm(_Open):
+    id: int
+    parameter: str
+    direction: Literal["decrease", "increase"]
+    active: bool
+    value: float | None
+    reference_mean: float | None
+    change_rel: float | None
+    first_epoch: int | None
+    epoch: int | None
+    message: str
+
+
+class Snapshot(_Open):
+    epoch: int
+    time: float
+    converged: bool
+    recent: dict[str, float | None]
+    parameters: dict[str, dict[str, Any]]
+    modal: dict[str, list[float | None]] | None = None
+
+
+class DriftReport(_Open):
+    system: str
+    rule: dict[str, Any]
+    reference: dict[str, Any] | None
+    history: list[Snapshot]
+    alarms: list[Alarm]
+    active_alarms: list[str]
+
+
+class SystemSummary(_Open):
+    name: str
+    state: str
+    epoch: int
+    converged: bool
+    n_recordings: dict[str, int]
+    active_alarms: list[str]
+
+
+class SystemList(_Open):
+    systems: list[SystemSummary]
+
+
+class Health(_Open):
+    status: Literal["ok"]
+    systems: int
+    workers_alive: int
+
+
+class ErrorDetail(BaseModel):
+    detail: str = Field(description="what is wrong, and where")

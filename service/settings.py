@@ -1,0 +1,116 @@
+"""Service settings, read from the environment (``SIVA_*``) with explicit overrides.
+
+A plain frozen dataclass rather than pydantic-settings: one less dependency, and every
+value is validated here so a typo in an environment variable stops ``siva serve`` with a
+message naming the variable instead of surfacing later inside a worker thread.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+# Environment variable -> field name.  Documented in docs/service.md.
+ENV_VARS: dict[str, str] = {
+    "SIVA_DATA_DIR": "data_dir",
+    "SIVA_MAX_UPLOAD_BYTES": "max_upload_bytes",
+    "SIVA_API_TOKEN": "api_token",
+    "SIVA_SEED": "seed",
+    "SIVA_PRESET": "preset",
+    "SIVA_REPLAY_WINDOW": "replay_window",
+    "SIVA_REPLAY_RESERVOIR": "replay_reservoir",
+    "SIVA_VALIDATION_WINDOW": "validation_window",
+    "SIVA_AUTO_VALIDATION_EVERY": "auto_validation_every",
+    "SIVA_SNAPSHOT_EVERY": "snapshot_every",
+    "SIVA_CHECKPOINT_EVERY_S": "checkpoint_every_s",
+    "SIVA_IDLE_SLEEP_S": "idle_sleep_s",
+    "SIVA_EPOCH_PAUSE_S": "epoch_pause_s",
+    "SIVA_HISTORY_LIMIT": "history_limit",
+    "SIVA_DRIFT_CONSECUTIVE": "drift_consecutive",
+    "SIVA_DRIFT_REL_TOL": "drift_rel_tol",
+    "SIVA_DRIFT_REFERENCE_AFTER": "drift_reference_after",
+    "SIVA_TORCH_THREADS": "torch_threads",
+}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Everything the service needs to know; see docs/service.md for the policies."""
+
+    data_dir: Path = field(default_factory=lambda: Path("./siva-data"))
+    max_upload_bytes: int = 64 * 1024 * 1024
+    api_token: str | None = None
+    seed: int = 42
+    preset: str = "fast"                # SivaSettings.<preset>(seed=...)
+    # Replay buffer (in memory; everything stays on disk).
+    replay_window: int = 8              # most recent train records kept
+    replay_reservoir: int = 4           # + a reservoir sample of older train records
+    validation_window: int = 8          # most recent validation records kept
+    auto_validation_every: int = 4      # role omitted: every k-th arrival -> validation
+    # Worker cadence.
+    snapshot_every: int = 5             # epochs between published snapshots
+    checkpoint_every_s: float = 30.0    # seconds between durable trainer checkpoints
+    idle_sleep_s: float = 0.5           # wait when there is nothing to train on
+    epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
+    # Drift detection.
+    history_limit: int = 2000           # snapshots kept in the drift history
+    drift_consecutive: int = 5          # snapshots outside the reference band -> alarm
+    drift_rel_tol: float = 0.05         # minimum half-width of the band, relative to |mean|
+    drift_reference_after: int = 10     # converged snapshots before the reference is frozen
+    torch_threads: int = 0              # 0: torch's default
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        if self.api_token == "":
+            object.__setattr__(self, "api_token", None)
+        positive = ("max_upload_bytes", "replay_window", "validation_window",
+                    "auto_validation_every", "snapshot_every", "history_limit",
+                    "drift_consecutive", "drift_reference_after")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
+        for name in ("replay_reservoir", "checkpoint_every_s", "idle_sleep_s", "epoch_pause_s",
+                     "drift_rel_tol", "torch_threads"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
+        if self.auto_validation_every < 2:
+            raise ValueError("setting auto_validation_every must be >= 2 "
+                             "(otherwise every record would go to validation)")
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None, **overrides: Any) -> "Settings":
+        """Defaults, then ``SIVA_*`` variables, then ``overrides`` (e.g. CLI flags)."""
+        env = os.environ if env is None else env
+        types = {f.name: f.type for f in fields(cls)}
+        values: dict[str, Any] = {}
+        for var, name in ENV_VARS.items():
+            raw = env.get(var)
+            if raw is None or (raw.strip() == "" and name != "api_token"):
+                continue
+            values[name] = _convert(raw.strip(), types[name], var)
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**values)
+
+    def with_(self, **kw: Any) -> "Settings":
+        return replace(self, **kw)
+
+
+def _convert(raw: str, typ: Any, var: str) -> Any:
+    typ = str(typ)
+    try:
+        if typ == "int":
+            try:
+                return int(raw)
+            except ValueError:
+                x = float(raw)  # accept "64e6"
+                if not x.is_integer():
+                    raise
+                return int(x)
+        if typ == "float":
+            return float(raw)
+        if typ == "Path":
+            return Path(raw)
+    except ValueError:
+        raise ValueError(f"environment variable {var}={raw!r} is not a valid {typ}") from None
+    return raw

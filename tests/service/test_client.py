@@ -1,0 +1,286 @@
+"""`SivaClient` and `siva-client` against the real server, plus offline error handling."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+DUFFING = ROOT.parent / "shared" / "data" / "duffing"
+sys.path.insert(0, str(ROOT))
+
+from clients import SivaClient, SivaClientError  # noqa: E402
+from clients.cli import main as cli_main  # noqa: E402
+from clients.client import folder_plan  # noqa: E402
+from service.demo import ServerThread  # noqa: E402
+from service.settings import Settings  # noqa: E402
+
+SPEC = ROOT / "examples" / "models" / "duffing.toml"
+TOKEN = "s3cret-token"
+
+
+def small(name: str, offset: int = 0) -> bytes:
+    lines = (DUFFING / name).read_text().splitlines()
+    return ("\n".join([lines[0]] + lines[1 + offset::10]) + "\n").encode()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory):
+    data = tmp_path_factory.mktemp("client-data")
+    st = Settings(data_dir=data, api_token=TOKEN, snapshot_every=2)
+    with ServerThread(st) as url:
+        yield url
+
+
+def test_register_upload_estimate_round_trip(server: str, tmp_path: Path) -> None:
+    with SivaClient(server, token=TOKEN) as c:
+        assert c.health()
+        ack = c.register("rt", SPEC)
+        assert ack["created"] is True and ack["free_parameters"] == ["b", "b_nl", "k", "k_nl"]
+        assert c.register("rt", SPEC)["created"] is False  # same spec again: 200
+        f = tmp_path / "train_v5.csv"
+        f.write_bytes(small("train_v5.csv"))
+        up = c.upload("rt", f, role="train")
+        assert up["id"] and up["role"] == "train" and up["filename"] == "train_v5.csv"
+        up2 = c.upload("rt", small("val_v3.csv"), role="val")
+        assert up2["role"] == "validation"
+        assert c.upload("rt", f)["duplicate"] is True
+        recs = c.recordings("rt")
+        assert [r["id"] for r in recs["recordings"]] == [up["id"], up2["id"]]
+        deadline = time.monotonic() + 120
+        while c.estimate("rt")["epoch"] < 2:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        est = c.estimate("rt")
+        assert set(est["parameters"]) == {"b", "b_nl", "k", "k_nl"}
+        assert est["n_recordings"] == {"train": 1, "validation": 1}
+        assert "history" in c.drift("rt")
+
+
+def test_server_detail_becomes_the_error_message(server: str) -> None:
+    with SivaClient(server, token=TOKEN) as c:
+        with pytest.raises(SivaClientError) as e:
+            c.estimate("nope")
+        assert e.value.status == 404 and "does not exist" in str(e.value)
+        c.register("errs", SPEC)
+        with pytest.raises(SivaClientError) as e:
+            bad = "time,acc_x\n" + "".join(f"{i / 10},{'nan' if i == 7 else 1}\n" for i in range(30))
+            c.upload("errs", bad.encode(), role="train")
+        assert e.value.status == 422 and "'acc_x'" in e.value.detail and "row" in e.value.detail
+        with pytest.raises(SivaClientError) as e:
+            c.register("errs", {**json.loads(json.dumps(_toml(SPEC))), "dofs": ["y"]})
+        assert e.value.status in (409, 422)
+    with SivaClient(server) as anon:  # no token: writes refused, reads fine
+        with pytest.raises(SivaClientError) as e:
+            anon.register("x", SPEC)
+        assert e.value.status == 401 and "Bearer" in str(e.value)
+        assert anon.health()
+
+
+def test_wait_converged_times_out_cleanly(server: str) -> None:
+    with SivaClient(server, token=TOKEN) as c:
+        c.register("idle", SPEC)  # no recordings: never converges
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match="idle: not converged"):
+            c.wait_converged("idle", timeout=0.6, poll=0.2)
+        assert time.monotonic() - t0 < 10
+
+
+def test_upload_folder_roles(tmp_path: Path) -> None:
+    (tmp_path / "train").mkdir()
+    (tmp_path / "val").mkdir()
+    (tmp_path / "train" / "a.csv").write_text("x")
+    (tmp_path / "val" / "b.csv").write_text("x")
+    (tmp_path / "val_c.csv").write_text("x")
+    (tmp_path / "d.json").write_text("x")
+    (tmp_path / "notes.txt").write_text("x")  # not a recording suffix
+    (tmp_path / ".hidden.csv").write_text("x")
+    plan = [(p.relative_to(tmp_path).as_posix(), r) for p, r in folder_plan(tmp_path)]
+    assert plan == [("d.json", None), ("train/a.csv", "train"), ("val/b.csv", "validation"),
+                    ("val_c.csv", "validation")]
+    assert {r for _, r in folder_plan(tmp_path, "train")} == {"train"}
+    with pytest.raises(SivaClientError, match="not a folder"):
+        folder_plan(tmp_path / "missing")
+
+
+def test_offline_errors_are_clear() -> None:
+    with SivaClient("http://127.0.0.1:9") as c:  # nothing listens on the discard port
+        with pytest.raises(SivaClientError, match="cannot reach the siva service"):
+            c.estimate("x")
+        assert c.health() is False
+        with pytest.raises(SivaClientError, match="unknown recording format"):
+            c.upload("x", b"...", fmt="xlsx")
+        with pytest.raises(SivaClientError, match="role must be"):
+            c.upload("x", b"...", role="test")
+        with pytest.raises(SivaClientError, match="cannot read"):
+            c.upload("x", "/nonexistent/file.csv")
+
+
+def test_validation_error_lists_are_flattened() -> None:
+    def handler(request: httpx.Request) -> httpx.Response:
+        return httpx.Response(422, json={"detail": [{"loc": ["query", "role"], "msg": "bad"}]})
+
+    with SivaClient("http://x", transport=httpx.MockTransport(handler)) as c:
+        with pytest.raises(SivaClientError, match=r"422 query\.role: bad"):
+            c.drift("s")
+
+    def plain(request: httpx.Request) -> httpx.Response:
+        return httpx.Response(502, text="Bad Gateway from proxy")
+
+    with SivaClient("http://x", transport=httpx.MockTransport(plain)) as c:
+        with pytest.raises(SivaClientError, match="502 Bad Gateway from proxy"):
+            c.estimate("s")
+
+
+def test_bearer_token_and_content_types_sent() -> None:
+    seen: list[httpx.Request] = []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        seen.append(request)
+        return httpx.Response(202, json={"id": "r1"})
+
+    with SivaClient("http://x/", token="tok", transport=httpx.MockTransport(handler)) as c:
+        c.upload("my sys", b"{}", fmt="json", role="train")
+        c.upload("s", b"PK..", fmt="npz")
+    r = seen[0]
+    assert r.headers["authorization"] == "Bearer tok"
+    assert r.headers["content-type"] == "application/json"
+    assert r.url.path == "/v1/systems/my%20sys/recordings" or r.url.raw_path.startswith(
+        b"/v1/systems/my%20sys/recordings")
+    assert r.url.params["role"] == "train"
+    assert seen[1].headers["content-type"] == "application/x-npz"
+    assert "role" not in seen[1].url.params
+
+
+def _toml(path: Path) -> dict:
+    import tomllib
+
+    return tomllib.loads(path.read_text())
+
+
+def _cli(args: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
+    code = cli_main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_commands(server: str, tmp_path: Path, capsys: pytest.CaptureFixture,
+                      monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SIVA_URL", server)
+    monkeypatch.setenv("SIVA_API_TOKEN", TOKEN)
+    code, out, _ = _cli(["register", "cli", str(SPEC)], capsys)
+    assert code == 0 and json.loads(out)["name"] == "cli"
+    (tmp_path / "train").mkdir()
+    (tmp_path / "val").mkdir()
+    (tmp_path / "train" / "t.csv").write_bytes(small("train_v5.csv"))
+    (tmp_path / "val" / "v.csv").write_bytes(small("val_v3.csv"))
+    code, out, _ = _cli(["upload-folder", "cli", str(tmp_path)], capsys)
+    acks = json.loads(out)
+    assert code == 0 and [a["role"] for a in acks] == ["train", "validation"]
+    extra = tmp_path / "t2.csv"
+    extra.write_bytes(small("train_v5.csv", offset=3))
+    code, out, _ = _cli(["upload", "cli", str(extra), "--role", "train"], capsys)
+    assert code == 0 and json.loads(out)["role"] == "train"
+    code, out, _ = _cli(["recordings", "cli"], capsys)
+    assert len(json.loads(out)["recordings"]) == 3
+    deadline = time.monotonic() + 120
+    while True:
+        code, out, _ = _cli(["estimate", "cli"], capsys)
+        if json.loads(out)["epoch"] >= 4:
+            break
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    code, out, _ = _cli(["drift", "cli", "--watch", "--interval", "0.1", "--count", "2"], capsys)
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert code == 0 and lines and all(x["event"] in ("estimate", "alarm") for x in lines)
+    assert all(isinstance(v, (float, type(None))) for v in lines[0]["parameters"].values())
+    # errors: the server's detail on stderr, exit 1; a wrong token is a 401
+    code, _, err = _cli(["estimate", "missing"], capsys)
+    assert code == 1 and "404" in err and "does not exist" in err
+    code, _, err = _cli(["--token", "wrong", "register", "z", str(SPEC)], capsys)
+    assert code == 1 and "401" in err
+    code, _, err = _cli(["--url", "http://127.0.0.1:9", "estimate", "cli"], capsys)
+    assert code == 1 and "cannot reach" in err
+
+
+def test_console_script_is_installed() -> None:
+    exe = Path(sys.executable).with_name("siva-client")
+    if not exe.exists():
+        pytest.skip("package not installed with its console scripts")
+    out = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "SIVA_URL": "http://127.0.0.1:9"})
+    assert out.returncode == 0 and "upload-folder" in out.stdout and "SIVA_API_TOKEN" in out.stdout
+
+
+# ------------------------------------------------------------------ deployment (docker/)
+# No docker engine runs here: check what can be checked without one.
+DOCKER = ROOT / "docker"
+
+
+def _dockerfile() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) with line continuations joined and comments dropped."""
+    text = (DOCKER / "Dockerfile").read_text().replace("\\\n", " ")
+    out = []
+    for line in text.splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            word, _, rest = line.partition(" ")
+            out.append((word.upper(), rest.strip()))
+    return out
+
+
+def test_dockerfile_builds_what_the_repo_has() -> None:
+    import shlex
+    import tomllib
+
+    steps = _dockerfile()
+    assert steps[0] == ("FROM", "python:3.11-slim")
+    args = dict(a.split("=", 1) for k, a in steps if k == "ARG")
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert f"torch=={args['TORCH_VERSION']}" in pyproject["project"]["dependencies"]
+    runs = [a for k, a in steps if k == "RUN"]
+    torch_run = next(r for r in runs if "torch==" in r)
+    assert runs.index(torch_run) < next(i for i, r in enumerate(runs) if "pip install ." in r)
+    assert "--index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
+    for k, a in steps:
+        if k == "COPY":
+            *sources, _dest = shlex.split(a)
+            for src in sources:
+                assert (ROOT / src).exists(), f"COPY {src}: not in the repository"
+    packages = pyproject["tool"]["setuptools"]["packages"]["find"]["include"]
+    copied = {shlex.split(a)[0] for k, a in steps if k == "COPY"}
+    assert {p.rstrip("*") for p in packages} <= copied
+    cmd = json.loads(next(a for k, a in steps if k == "CMD"))
+    assert cmd == ["siva", "serve", "--host", "0.0.0.0", "--data-dir", "/data"]
+    assert "siva" in pyproject["project"]["scripts"]
+    from siva_core.cli import build_parser
+
+    ns = build_parser().parse_args(cmd[1:])
+    assert (ns.command, ns.host, ns.data_dir, ns.port) == ("serve", "0.0.0.0", "/data", 8000)
+    assert ("EXPOSE", "8000") in steps and ("USER", "siva") in steps
+    health = next(a for k, a in steps if k == "HEALTHCHECK")
+    assert "/healthz" in health and ":8000" in health
+    compile(json.loads(health.split("CMD", 1)[1])[2], "<healthcheck>", "exec")
+
+
+def test_compose_file() -> None:
+    import yaml
+
+    doc = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    svc = doc["services"]["siva"]
+    ctx = (DOCKER / svc["build"]["context"]).resolve()
+    assert ctx == ROOT and (ctx / svc["build"]["dockerfile"]).is_file()
+    assert "8000:8000" in svc["ports"]
+    vol, _, target = svc["volumes"][0].split()[0].partition(":")
+    assert target == "/data" and vol in doc["volumes"]  # a named volume, not a bind mount
+    assert "SIVA_API_TOKEN" in svc["environment"]  # passthrough (no value: taken from host)
+    hc = svc["healthcheck"]["test"]
+    assert hc[0] == "CMD" and any("/healthz" in part for part in hc)
+    compile(hc[-1], "<healthcheck>", "exec")
