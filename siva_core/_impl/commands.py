@@ -15,15 +15,18 @@ def identify_command(args: argparse.Namespace) -> int:
     structure = Structure.from_file(args.model)
     train = [Recording.read(p, structure.dofs) for p in args.train]
     val = [Recording.read(p, structure.dofs) for p in args.val]
+    progress = None if args.quiet else _progress
     est = Siva(structure, processing=args.processing, preset=args.preset, seed=args.seed,
                max_epochs=args.epochs, baselines=not args.no_baselines,
-               progress=None if args.quiet else _progress).fit(train, val)
+               progress=progress).fit(train, val)
     result = est.result_
     if args.report:
         from .report import write_report
 
-        paths = write_report(est, Path(args.report))
-        _progress(f"report: {len(paths)} figures in {args.report}")
+        paths = write_report(est, Path(args.report), progress=progress)
+        if progress:
+            progress(f"report: {sum(p.suffix == '.png' for p in paths)} figures and "
+                     f"index.html in {args.report}")
     text = json.dumps(result.to_json(), indent=2)
     if args.out:
         Path(args.out).write_text(text + "\n")

@@ -71,16 +71,13 @@ class _RecordSims:
 # ---------------------------------------------------------------------------- entry point
 def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | None = None,
                  train: Sequence[Recording] | None = None, val: Sequence[Recording] | None = None,
-                 n_sims: int = 200, dpi: int = 100, progress: Progress | None = _stderr
-                 ) -> list[Path]:
+                 n_sims: int = 200, sim_budget_s: float | None = 30.0, dpi: int = 100,
+                 progress: Progress | None = _stderr) -> list[Path]:
     """Write the figures and ``index.html`` into ``out_dir``; returns the written paths
     (PNGs in drawing order, ``index.html`` last).  ``truth`` (optional) marks exact values.
-    ``n_sims`` Approach I samples are simulated for the band (the paper used all 1000)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    ``n_sims`` Approach I samples are simulated for the band (the paper used all 1000),
+    fewer (at least 20 per record) when putting them through the processing chain would
+    take longer than ``sim_budget_s`` in all (None: no limit)."""
     res = est.result_
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -95,32 +92,37 @@ def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | 
         if not getattr(fig, "_siva_laid_out", False):
             fig.tight_layout()  # one layout pass: constrained layout re-runs on every draw
         fig.savefig(path, dpi=dpi)
-        plt.close(fig)
         written.append((path, caption))
         say(f"report: {fname} ({time.perf_counter() - t_start:.1f} s)")
 
-    save(_fig_losses(plt, res), "losses.png",
+    save(_fig_losses(res), "losses.png",
          "(a) Losses per epoch: discriminator (ln 4 = optimum, eq. 3), adversarial term "
          "(ln(4)/2), MSE of the accelerations (log axis); dotted: convergence epoch.")
     window = _window(est, res)
-    save(_fig_parameters(plt, res, names, window, truth_vec), "parameters.png",
+    save(_fig_parameters(res, names, window, truth_vec), "parameters.png",
          "(b) Parameter per epoch (mean of the epoch's last batch); shaded: the Approach II "
          "window.")
-    save(_fig_distributions(plt, res, names, truth_vec), "distributions.png",
+    save(_fig_distributions(res, names, truth_vec), "distributions.png",
          "(c) Approach II distribution: histogram, fitted normal pdf over +-6 std, mean "
          "(dashed red), 95 % CI (green); Approach III, best and exact value marked.")
 
     recs, note = _records(est, train, val)
     say(f"report: simulating {len(recs)} records ({min(n_sims, len(res.samples_I))} Approach I "
         f"samples + 4 point estimates each)")
-    sims = [_simulate_record(est, res, rec, role, n_sims) for rec, role in recs]
+    per_rec = None if sim_budget_s is None else sim_budget_s / max(1, len(recs))
+    sims = []
+    for rec, role in recs:
+        sims.append(_simulate_record(est, res, rec, role, n_sims, per_rec))
+        say(f"report: simulated {rec.name}: {len(sims[-1].band_sims)} band sets"
+            + (f" ({sims[-1].n_diverged} diverged)" if sims[-1].n_diverged else "")
+            + f" ({time.perf_counter() - t_start:.1f} s)")
     for k, rs in enumerate(sims):
         slug = f"{k}_{_slug(rs.name)}"
-        save(_fig_response(plt, rs, est.structure.dofs), f"response_{slug}.png",
+        save(_fig_response(rs, est.structure.dofs), f"response_{slug}.png",
              f"(d) {rs.role} record {rs.name}: measured vs simulated displacement.")
-        save(_fig_spectrum(plt, rs, est.structure.dofs), f"spectrum_{slug}.png",
+        save(_fig_spectrum(rs, est.structure.dofs), f"spectrum_{slug}.png",
              f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra.")
-        save(_fig_cwt(plt, rs, est.structure.dofs), f"cwt_{slug}.png",
+        save(_fig_cwt(rs, est.structure.dofs), f"cwt_{slug}.png",
              f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best.")
 
     index = out / "index.html"
@@ -176,10 +178,13 @@ def _states_as_recording(s: States, dofs: Sequence[str]) -> Recording:
     return Recording(s.t, ch, s.name, {"from_states": True})
 
 
-def _simulate_record(est: Any, res: Any, rec: Recording, role: str, n_sims: int) -> _RecordSims:
-    """Simulate the Approach I subset and the point estimates on one record, through the
-    chain, in one batch (substeps chosen from the point estimates and the band's 2.5/97.5 %
-    parameter percentiles, so one odd sample cannot force thousands of substeps)."""
+def _simulate_record(est: Any, res: Any, rec: Recording, role: str, n_sims: int,
+                     budget_s: float | None = None) -> _RecordSims:
+    """Simulate the point estimates and the Approach I subset on one record, each through
+    the processing chain (``OutputErrorProblem.simulated_states``, batched).  Substeps are
+    chosen from the point estimates and the band's 2.5/97.5 % parameter percentiles (one
+    odd sample cannot force thousands).  ``budget_s`` caps the time spent on the band (at
+    least 20 sets), extrapolated from the point estimates; the count used is shown."""
     from .refine import OutputErrorProblem
 
     st = est.structure
@@ -193,22 +198,32 @@ def _simulate_record(est: Any, res: Any, rec: Recording, role: str, n_sims: int)
     sub = np.asarray(res.samples_I, dtype=float)[:n_sims]
     ref = np.vstack([pts, np.percentile(sub, [2.5, 97.5], axis=0)]) if len(sub) else pts
     prob = OutputErrorProblem.build(st, [rec], proc, quantity="disp", theta_ref=ref)
-    thetas = np.vstack([sub, pts]) if len(sub) else pts
-    states = prob.simulated_states(thetas, 0)
     target = prob.records[0].target * 1e3
-    meas = proc.apply(rec, st.dofs)
     T, n = target.shape
 
-    def q_of(s: States | None) -> np.ndarray:
-        if s is None or not np.all(np.isfinite(s.q)):
-            return np.full((T, n), np.nan)
-        return s.q * 1e3
+    def processed(thetas: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """Displacement [mm] per set through the chain (NaN when diverged), and the time."""
+        out, t = [], None
+        for s in prob.simulated_states(thetas, 0):
+            if s is not None and t is None:
+                t = s.t
+            ok = s is not None and s.q.shape == (T, n) and np.all(np.isfinite(s.q))
+            out.append(s.q * 1e3 if ok else np.full((T, n), np.nan))
+        return out, t
 
-    all_q = [q_of(s) for s in states]
-    band = np.array([q for q in all_q[:len(sub)] if np.all(np.isfinite(q))]).reshape(-1, T, n)
-    points = {k: all_q[len(sub) + i] for i, k in enumerate(order)}
-    return _RecordSims(rec.name, role, meas.t, target, band, points,
-                       len(sub) - len(band), 1.0 / meas.dt)
+    t0 = time.perf_counter()
+    point_q, t_axis = processed(pts)
+    per_set = (time.perf_counter() - t0) / len(pts)
+    n_band = len(sub)
+    if budget_s is not None and per_set > 0:
+        # the first batch includes fixed costs, so this errs on the side of fewer sets
+        n_band = int(min(n_band, max(20, budget_s / per_set)))
+    band_q = processed(sub[:n_band])[0] if n_band else []
+    band = np.array([q for q in band_q if np.all(np.isfinite(q))]).reshape(-1, T, n)
+    if t_axis is None:  # every point estimate diverged: the chain's time axis of the record
+        t_axis = prob.chain.apply(rec, st.dofs).t
+    return _RecordSims(rec.name, role, t_axis, target, band, dict(zip(order, point_q)),
+                       len(band_q) - len(band), 1.0 / (t_axis[1] - t_axis[0]))
 
 
 def _mse(a: np.ndarray, b: np.ndarray) -> float:
@@ -227,10 +242,21 @@ def _grid(n: int) -> tuple[int, int]:
 
 
 # ---------------------------------------------------------------------------- figures
-def _fig_losses(plt: Any, res: Any) -> Any:
+def _subplots(nrows: int, ncols: int, **kw: Any) -> tuple[Any, Any]:
+    """A figure on its own Agg canvas: no pyplot, so no global backend or figure registry
+    is touched (safe inside a service thread or next to a user's interactive session)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=kw.pop("figsize", None))
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
+def _fig_losses(res: Any) -> Any:
     h = res.history
     ep = np.arange(len(h["loss_d"]))
-    fig, axs = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axs = _subplots(1, 3, figsize=(13, 3.6))
     ax = axs[0]
     ax.plot(ep, h["loss_d"], lw=0.8, color="tab:blue", label=r"$\mathcal{L}_D$")
     ax.axhline(LN4, color="k", ls="--", lw=1, label=f"ln 4 = {LN4:.4f}")
@@ -254,12 +280,12 @@ def _fig_losses(plt: Any, res: Any) -> Any:
     return fig
 
 
-def _fig_parameters(plt: Any, res: Any, names: Sequence[str], window: tuple[int, int] | None,
+def _fig_parameters(res: Any, names: Sequence[str], window: tuple[int, int] | None,
                     truth: np.ndarray | None) -> Any:
     theta = np.array(res.history["theta"], dtype=float).reshape(-1, len(names))
     ep = np.arange(len(theta))
     nr, nc = _grid(len(names))
-    fig, axs = plt.subplots(nr, nc, figsize=(4.3 * nc, 2.9 * nr),
+    fig, axs = _subplots(nr, nc, figsize=(4.3 * nc, 2.9 * nr),
                             squeeze=False)
     for k, p in enumerate(names):
         ax = axs.flat[k]
@@ -290,10 +316,10 @@ def _fig_parameters(plt: Any, res: Any, names: Sequence[str], window: tuple[int,
     return fig
 
 
-def _fig_distributions(plt: Any, res: Any, names: Sequence[str], truth: np.ndarray | None) -> Any:
+def _fig_distributions(res: Any, names: Sequence[str], truth: np.ndarray | None) -> Any:
     S = np.asarray(res.samples_II, dtype=float).reshape(-1, len(names))
     nr, nc = _grid(len(names))
-    fig, axs = plt.subplots(nr, nc, figsize=(4.3 * nc, 3.0 * nr),
+    fig, axs = _subplots(nr, nc, figsize=(4.3 * nc, 3.0 * nr),
                             squeeze=False)
     for k, p in enumerate(names):
         ax = axs.flat[k]
@@ -333,9 +359,9 @@ def _fig_distributions(plt: Any, res: Any, names: Sequence[str], truth: np.ndarr
     return fig
 
 
-def _fig_response(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+def _fig_response(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     n = len(dofs)
-    fig, axs = plt.subplots(n, 2, figsize=(13, 3.0 * n), squeeze=False,
+    fig, axs = _subplots(n, 2, figsize=(13, 3.0 * n), squeeze=False,
                             sharex=True)
     t = rs.t
     for k, d in enumerate(dofs):
@@ -371,9 +397,9 @@ def _fig_response(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
     return fig
 
 
-def _fig_spectrum(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+def _fig_spectrum(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     n = len(dofs)
-    fig, axs = plt.subplots(n, 1, figsize=(9, 3.0 * n), squeeze=False)
+    fig, axs = _subplots(n, 1, figsize=(9, 3.0 * n), squeeze=False)
     fmin, fmax = frequency_band(rs.measured, rs.fs)
     for k, d in enumerate(dofs):
         ax = axs[k, 0]
@@ -402,9 +428,9 @@ def _fig_spectrum(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
     return fig
 
 
-def _fig_cwt(plt: Any, rs: _RecordSims, dofs: Sequence[str]) -> Any:
+def _fig_cwt(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     n = len(dofs)
-    fig, axs = plt.subplots(n, 2, figsize=(12, 3.0 * n), squeeze=False,
+    fig, axs = _subplots(n, 2, figsize=(12, 3.0 * n), squeeze=False,
                             sharey="row")
     t = rs.t
     _, fmax = frequency_band(rs.measured, rs.fs)

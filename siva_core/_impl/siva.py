@@ -170,6 +170,7 @@ class Siva:
         timing: dict[str, float] = {}
         proc = choose_processing(self.processing, [*train, *val], st.dofs)
         self.processing_ = proc
+        self.train_recordings_, self.val_recordings_ = list(train), list(val)
         t0 = time.perf_counter()
         self.train_states_ = [proc.apply(r, st.dofs) for r in train]
         self.val_states_ = [proc.apply(r, st.dofs) for r in val]
