@@ -104,8 +104,9 @@ class _Design:
         for k, d in enumerate(structure.dofs):
             gain = structure.force_gains.get(d, 1.0)
             if isinstance(gain, str) and gain in self.linear:
+                # +g F on DOF k: a "force" pushing k by -(-F), hence sign -1 with basis F
                 self._terms.append(_Term(gain, ((k, -1.0),),
-                                         lambda vals, q, v, f, k=k: -f[:, k]))
+                                         lambda vals, q, v, f, k=k: f[:, k]))
 
     # -- element pieces --------------------------------------------------------------
     def _coeffs(self, el, values: dict[str, float], unit: str | None) -> dict[str, float]:
@@ -176,15 +177,16 @@ class _Design:
 
     def nonlinear_bounds(self, p: str) -> tuple[_NonlinearPrior, float, float, float]:
         """Prior, reference, and bounds of nonlinear parameter ``p`` (spec bounds win)."""
-        prior, ref = None, 1.0
+        prior: _NonlinearPrior | None = None
+        dmax: list[float] = []  # largest |d| of each element using p (for "dmax" priors)
         for el in self.s.elements:
             for c, name in zip(el.kind.coefficients, el.params):
                 if name == p and c not in el.kind.linear:
-                    prior = _PRIORS.get((el.kind.name, c))
-                    if prior is not None and prior.ref == "dmax":
-                        d = self.q[:, el.i] - (self.q[:, el.j] if el.j >= 0 else 0.0)
-                        ref = max(ref if ref != 1.0 else 0.0, float(np.max(np.abs(d))))
-                    break
+                    prior = prior or _PRIORS.get((el.kind.name, c))
+                    d = self.q[:, el.i] - (self.q[:, el.j] if el.j >= 0 else 0.0)
+                    dmax.append(float(np.max(np.abs(d))) if d.size else 0.0)
+        ref = max(dmax) if prior is not None and prior.ref == "dmax" and dmax else 1.0
+        ref = ref if ref > 0 else 1.0
         info = self.s.parameters[p]
         if prior is None:
             scale = info.scale or 1.0
@@ -210,11 +212,7 @@ def _profile(design: _Design, residual: Callable[[np.ndarray], np.ndarray]) -> n
     if not nl:
         return np.zeros(0)
     bounds = [design.nonlinear_bounds(p) for p in nl]
-    x = np.array([
-        (design.s.parameters[p].scale if design.s.parameters[p].scale and prior.ref == "one"
-         and not (prior.grid[0] <= design.s.parameters[p].scale <= prior.grid[-1])
-         else prior.grid[len(prior.grid) // 2] * ref)
-        for p, (prior, ref, lo, hi) in zip(nl, bounds)], float)
+    x = np.array([prior.grid[len(prior.grid) // 2] * ref for prior, ref, _, _ in bounds], float)
     for _sweep in range(2):  # coordinate scans: cheap and robust to poor starting points
         for k, (prior, ref, lo, hi) in enumerate(bounds):
             best = (np.inf, x[k])
@@ -228,7 +226,7 @@ def _profile(design: _Design, residual: Callable[[np.ndarray], np.ndarray]) -> n
     lo = np.array([b[2] for b in bounds])
     hi = np.array([b[3] for b in bounds])
     scale = np.array([max(abs(v), b[1] * 1e-3, 1e-12) for v, b in zip(x, bounds)])
-    x0 = np.clip(x, lo + 1e-12 * np.abs(lo), hi - 1e-12 * np.abs(hi))
+    x0 = np.clip(x, lo, hi)  # inside (or on) the bounds: least_squares nudges it inward
     res = optimize.least_squares(lambda z: residual(z * scale), x0 / scale,
                                  bounds=(lo / scale, hi / scale), x_scale="jac",
                                  diff_step=1e-6, xtol=1e-12, ftol=1e-12, gtol=1e-12)
@@ -278,8 +276,10 @@ def sindy(structure: Structure, states_list: Sequence[States], *,
     the model's terms are all wanted), no ridge, normalised columns.  The acceleration rows
     of the coefficient matrix are mapped back: coefficient x mass x sign of the term in that
     DOF's equation; estimates of one parameter from several equations are averaged.
-    Nonlinear parameters (e.g. ``beta``) are profiled: the SINDy residual is minimised over
-    them like in :func:`least_squares`, since a polynomial library cannot express them.
+    Nonlinear parameters (e.g. ``beta``) are profiled: the SINDy residual (per-equation
+    least squares, which is what STLSQ computes at threshold 0) is minimised over them like
+    in :func:`least_squares`, since a polynomial library cannot express them; pysindy then
+    fits at the profiled values.
     """
     import pysindy as ps
 
@@ -321,7 +321,18 @@ def sindy(structure: Structure, states_list: Sequence[States], *,
         resid = target - feats @ coef.T
         return coef, resid, model
 
-    theta_nl = _profile(design, lambda z: fit(z)[1].ravel())
+    def profile_residual(theta_nl: np.ndarray) -> np.ndarray:
+        # what STLSQ at threshold 0 without ridge computes, per equation, without building
+        # a pysindy model for every trial of the nonlinear parameters
+        values = design.values(theta_nl)
+        target = design.a - design.known_acc(values)
+        feats = np.column_stack([t.basis(values, design.q, design.v, design.f) for t in terms])
+        norms = np.linalg.norm(feats, axis=0)
+        norms[norms == 0] = 1.0
+        coef, *_ = np.linalg.lstsq(feats / norms, target, rcond=None)
+        return (target - (feats / norms) @ coef).ravel()
+
+    theta_nl = _profile(design, profile_residual)
     coef, resid, model = fit(theta_nl)
     estimates: dict[str, list[float]] = {}
     per_equation: dict[str, dict[str, float]] = {}

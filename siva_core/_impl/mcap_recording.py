@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import io
 import json
-import struct
 from pathlib import Path
 from typing import IO, Any, Sequence
 
@@ -77,7 +76,6 @@ def mcap_bytes(rec: Recording, **kw: Any) -> bytes:
 def read_mcap_recording(raw: bytes, dofs: Sequence[str] | None = None,
                         name: str = "upload") -> Recording:
     """Read the ``/recording`` channel of an MCAP file into a validated Recording."""
-    from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader
 
     if not isinstance(raw, (bytes, bytearray, memoryview)):
@@ -109,7 +107,7 @@ def read_mcap_recording(raw: bytes, dofs: Sequence[str] | None = None,
             blocks.append((message.log_time, k, body))
     except RecordingError:
         raise
-    except (McapError, EOFError, ValueError, KeyError, struct.error) as exc:
+    except Exception as exc:  # noqa: BLE001 - any unreadable upload is a user error
         raise RecordingError(f"{name}: unreadable MCAP file ({type(exc).__name__}: {exc})") \
             from None
     if not blocks:

@@ -23,8 +23,8 @@ from __future__ import annotations
 import math
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import numpy as np
 from scipy import integrate, signal
@@ -90,7 +90,8 @@ class Processing:
     decimate_to: target sampling rate in Hz (the paper: 256 Hz), zero-phase anti-aliasing.
     start: "impact" keeps the record from just after the force pulse ends (free response,
         the paper's LO-NO choice); "start" keeps it whole; a float is a time in seconds.
-    trim: seconds cut at both ends after filtering (filter edge transients).
+    trim: seconds cut at both ends of the record after filtering (filter edge transients);
+        a start after the impact that is later than ``trim`` is kept as it is.
     gate_force: zero the force outside its pulse(s) (|F| above ``impact_threshold`` of its
         peak, widened by ``gate_margin`` s): between hits a hammer applies no force, the
         channel only carries noise that would enter the equation of motion.  With
@@ -103,6 +104,11 @@ class Processing:
         the derivative's gain error small up to a good fraction of Nyquist.
     integrator: "trapezoid" (the paper's cumtrapz) or "simpson" (cumulative Simpson: about
         3x smaller error across a sharp impact pulse, whose error becomes velocity drift).
+    pad: seconds of zeros added before and after the record for the derivation (the
+        structure at rest).  Zero-phase filters ring *before* an impact as well as after;
+        without room before the record's first sample that part is lost from the integral,
+        and the filters no longer commute with integration (``consistent`` then fails).
+        Only right when the record starts and ends at rest (impact tests).
     """
 
     bandpass: tuple[float, float] | None = None
@@ -116,11 +122,13 @@ class Processing:
     notch: tuple[float, ...] = ()
     notch_q: float = 30.0
     gate_force: bool = False
-    gate_margin: float = 0.002
     consistent: bool = False
     diff_accuracy: int = 6
     integrator: str = "trapezoid"
-    summary: SpectrumSummary | None = field(default=None, compare=False, repr=False)
+    pad: float = 0.0
+    gate_margin: float = 0.0
+    # what auto() read off the spectra: an attribute, not a setting (not in asdict/eq)
+    summary: ClassVar[SpectrumSummary | None] = None
 
     # ------------------------------------------------------------------ presets
     @classmethod
@@ -151,20 +159,24 @@ class Processing:
         2. Otherwise the measured spectra set the band.  For each DOF the most derivative
            quantity measured (acc, else vel, else disp) is analysed over the free response
            (after the force pulse when the force is impulsive): Welch PSD with ~0.25 Hz
-           resolution (coarser for short records), noise floor N = median PSD.
+           resolution (coarser for short records), noise floor N = median PSD (that of the
+           upper half of the band when lower).
            *Stationary lines* (narrow peaks whose level stays within a factor 4 between the
            first and last third of a decaying record: mains hum, tones; in records that do
            not decay, narrow peaks at multiples of 50/60 Hz) are noise.  Every other local
            maximum 20 dB above N (and 6 dB above its surroundings) is a *significant peak*.
-           - high-pass ``fh``: as low as the noise allows, within [f1/8, f1/2] where f1 is
-             the lowest significant peak within 20 dB of the strongest one.  Integrating p times turns the white floor N into
-             N/(2 pi f)^(2p); ``fh`` is where that integrated noise reaches 3 % of the RMS of
-             the integrated signal: fh = (N / ((2p-1) (2 pi)^(2p) 0.03^2 S))^(1/(2p-1)),
+           - high-pass ``fh``: as low as the noise allows, within [f1/6, f1/2] where f1 is
+             the lowest significant peak within 20 dB of the strongest one.  Integrating p
+             times turns the white floor N into N/(2 pi f)^(2p); ``fh`` is where that
+             integrated noise reaches 3 % of the RMS of the integrated signal:
+             fh = (N / ((2p-1) (2 pi)^(2p) 0.03^2 S))^(1/(2p-1)),
              S = sum of (P - N)/(2 pi f)^(2p) df.  Lower is not better: a high-pass also
-             removes the response's own slow content, which the nonlinear terms feel.
-             At least 2 / record duration, so integration drift cannot build up.
-           - low-pass ``fl`` = 2 x the highest frequency still 20 dB above N (harmonics
-             included), at most 0.8 x Nyquist.
+             removes the response's own slow content, which the nonlinear terms feel, and
+             below 4 / record duration its transients at the record ends (it is zero-phase,
+             so non-causal) spoil the double integral.
+           - low-pass ``fl`` = 2 x the highest frequency still 20 dB above N and within
+             60 dB of the strongest line in acceleration terms (harmonics included), at
+             most 0.8 x Nyquist.
            - stationary lines in (fh, fl) get zero-phase notches (Q = 30) rather than a
              low-pass below them, which would cut the nonlinear harmonics above the hum.
            acc-only DOFs: band-pass (fh, fl), integrate twice (Simpson) with high-pass fh.
@@ -172,7 +184,8 @@ class Processing:
         3. All signals, force included, get the same total filter (``consistent``), and an
            impulsive force (above 2 % of its peak for < 10 % of the record) is gated to
            its pulse; the record then starts just after the impact.
-        4. Decimation by the largest integer factor keeping fs >= 4 fl (none below 2).
+        4. Decimation by the largest integer factor keeping fs >= 4 fl (none below 2), and
+           min(4 / fl, 2 % of the record) trimmed at both ends (filter edge transients).
 
         ``overrides`` replace any chosen setting.  The analysis is kept in ``summary``.
         """
@@ -206,8 +219,7 @@ class Processing:
             first, top = 40.0 / max(duration, 1e-9), 0.4 * nyq
         else:
             first, top = summary.first_hz, summary.top_hz or summary.first_hz
-        fh = min(max(summary.noise_hz or 0.0, first / 8.0), first / 2.0)
-        fh = max(fh, 2.0 / duration)
+        fh = min(max(summary.noise_hz or 0.0, first / 6.0, 4.0 / duration), first / 2.0)
         if fh > first / 2:
             warnings.warn(f"Processing.auto: record too short ({duration:.3g} s) for a "
                           f"high-pass well below the lowest peak ({first:.3g} Hz)",
@@ -215,18 +227,20 @@ class Processing:
         fl = min(2.0 * max(top, first), 0.8 * nyq)
         lines = tuple(x for x in summary.lines_hz if fh < x < fl)
         k = int(fs_min // (4.0 * fl)) if fl > 0 else 1
+        fh, fl = float(fh), float(fl)
         settings: dict[str, Any] = dict(
             bandpass=(fh, fl) if has_acc else None,
             highpass=fh if needs_int else None,
             lowpass_diff=fl if needs_diff else None,
-            notch=lines,
-            decimate_to=fs_min / k if k >= 2 else None,
+            notch=tuple(float(x) for x in lines),
+            decimate_to=float(fs_min / k) if k >= 2 else None,
             start=probe.start,
             gate_force=impulsive,
             consistent=True,
             integrator="simpson",
             order=4,
-            trim=0.0,
+            # the low-pass rings for a few of its periods at the record's ends
+            trim=float(min(4.0 / fl, 0.02 * duration)) if fl > 0 else 0.0,
         )
         settings.update(overrides)
         out = cls(**settings)
@@ -251,7 +265,11 @@ class Processing:
                              output="sos")
 
     def _filt(self, x: np.ndarray, kind: str, cut: Any, fs: float, axis: int = 0) -> np.ndarray:
-        return signal.sosfiltfilt(self._sos(kind, cut, fs), x, axis=axis)
+        """Zero-phase (forward-backward) second-order sections; short records still work."""
+        sos = self._sos(kind, cut, fs)
+        n = np.shape(x)[axis]
+        padlen = min(3 * (2 * len(sos) + 1), max(n - 1, 0))
+        return signal.sosfiltfilt(sos, x, axis=axis, padlen=padlen)
 
     def _apply_key(self, x: np.ndarray, key: FilterKey, fs: float, axis: int) -> np.ndarray:
         kind = key[0]
@@ -306,13 +324,28 @@ class Processing:
         Every derived signal records the filters it went through (its ledger); with
         ``consistent`` each signal is then topped up to the union of all ledgers.
         """
+        npad = int(round(self.pad * fs))
+
+        def padded(x: np.ndarray, axis: int) -> np.ndarray:
+            """The structure at rest before and after the record: zeros, on every signal."""
+            if npad <= 0:
+                return x
+            width = [(0, 0)] * x.ndim
+            width[axis] = (npad, npad)
+            return np.pad(x, width)
+
+        def source(qty: str, d: str) -> np.ndarray | None:
+            x = given(qty, d)
+            return None if x is None else padded(np.asarray(x, float), -1)
+
+        force = padded(np.asarray(force, float), 0)
         qs, vs, as_ = [], [], []
         ledgers: list[Counter] = []
         acc_keys = self._acc_keys(fs)
         high = [("high", float(self.highpass))] if self.highpass is not None else []
         low = [("low", float(self.lowpass_diff))] if self.lowpass_diff is not None else []
         for d in dofs:
-            dq, dv, da = given("disp", d), given("vel", d), given("acc", d)
+            dq, dv, da = source("disp", d), source("vel", d), source("acc", d)
             if dq is None and dv is None and da is None:
                 raise ValueError(f"DOF {d!r} has no disp, vel or acc")
             la = lv = lq = Counter()
@@ -349,6 +382,9 @@ class Processing:
         shape = np.broadcast_shapes(*(x.shape for x in qs + vs + as_))
         q, v, a = (np.stack([np.broadcast_to(x, shape) for x in lst], axis=-1)
                    for lst in (qs, vs, as_))
+        if npad > 0:
+            keep = slice(npad, q.shape[-2] - npad)
+            q, v, a, f = q[..., keep, :], v[..., keep, :], a[..., keep, :], f[keep]
         return q, v, a, f
 
     def _top_up(self, x: np.ndarray, missing: Counter, fs: float, axis: int) -> np.ndarray:
@@ -403,9 +439,9 @@ class Processing:
             q, v, a = (self._filt(x, "low", cut, fs, axis=-2) for x in (q, v, a))
             if self.consistent:
                 f = self._filt(f, "low", cut, fs, axis=0)
-        i0 = self.start_index(rec, dofs)
-        i0 += int(round(self.trim * fs))
-        i1 = len(rec) - int(round(self.trim * fs))
+        edge = int(round(self.trim * fs))
+        i0 = max(self.start_index(rec, dofs), edge)
+        i1 = len(rec) - edge
         if i1 - i0 < 2 * k:
             raise ValueError(f"{rec.name}: nothing left after start/trim "
                              f"(start index {i0}, end {i1})")
@@ -465,27 +501,35 @@ class Processing:
             parts.append("consistent filtering")
         if self.gate_force:
             parts.append("force gated to its pulse")
-        parts.append(f"start {self.start}")
+        parts.append(f"from {self.start!r}" if not isinstance(self.start, (int, float))
+                     else f"from t = {self.start:g} s")
         return "; ".join(parts) if parts else "none"
 
 
-def simulated_recording(measured: Recording, dofs: Sequence[str], q: np.ndarray,
+def simulated_recording(measured: Recording, dofs: Sequence[str] | Any, q: np.ndarray,
                         v: np.ndarray, a: np.ndarray, *, name: str | None = None) -> Recording:
     """A Recording of simulated (T, n_dof) states with the channels ``measured`` has.
+
+    ``dofs``: the DOF names, or anything with a ``dofs`` attribute (a Structure).
 
     The force channels are copied from ``measured`` (the simulation was driven by them), so
     ``proc.apply(simulated_recording(...))`` gives states processed exactly like
     ``proc.apply(measured)``: same derivations, filters, start and decimation.
     """
+    dofs = list(getattr(dofs, "dofs", dofs))
     sim = {"disp": np.asarray(q, float), "vel": np.asarray(v, float),
            "acc": np.asarray(a, float)}
+    for key, x in sim.items():
+        if x.shape != (len(measured), len(dofs)):
+            raise ValueError(f"simulated {key} has shape {x.shape}, expected "
+                             f"({len(measured)}, {len(dofs)})")
     channels: dict[str, np.ndarray] = {}
     for key, x in measured.channels.items():
         qty, _, d = key.partition("_")
         if qty == "force":
             channels[key] = x.copy()
         elif qty in sim and d in dofs:
-            channels[key] = sim[qty][:, list(dofs).index(d)].copy()
+            channels[key] = sim[qty][:, dofs.index(d)].copy()
     return Recording(measured.time.copy(), channels, name or f"{measured.name} (simulated)",
                      {"simulated": True})
 
@@ -557,17 +601,22 @@ def _analyse_spectra(recs: Sequence[Recording], dofs: Sequence[str],
             freq, P = signal.welch(x, fs=fs, nperseg=nper, detrend="linear")
             df = float(freq[1] - freq[0])
             resolution = max(resolution, df)
-            floor = float(np.median(P[1:]))
-            # 20 dB above the floor; at most 60 dB below the strongest line (noise-free data)
-            thr = max(100.0 * floor, 1e-6 * float(P.max()))
+            # noise floor: median PSD, or that of the upper half of the band when lower
+            # (a broadband but noise-free response would otherwise pass for noise)
+            floor = float(min(np.median(P[1:]), np.median(P[len(P) // 2:])))
+            # 20 dB above the floor, and (noise-free data) within 60 dB of the strongest line
+            # in acceleration terms: what the equation of motion sees
+            p_int = {"acc": 2, "vel": 1, "disp": 0}[qty]
+            to_acc = (2 * np.pi * np.maximum(freq, df)) ** (2 * (2 - p_int))
+            thr = np.maximum(100.0 * floor, 1e-6 * float((P * to_acc).max()) / to_acc)
             rec_lines = _stationary_lines(x, fs, nper, freq, P, thr)
             fmin = max(4 * df, 2.0 / (n / fs))  # below: the record's own mean/trend
             mask = freq >= fmin
             for f0 in rec_lines:
                 mask &= np.abs(freq - f0) > 2.5 * df
             logp = np.log10(np.maximum(P, 1e-300))
-            pk, _ = signal.find_peaks(np.where(mask, logp, logp.min()),
-                                      height=math.log10(thr), prominence=0.6)
+            pk, _ = signal.find_peaks(np.where(mask & (P > thr), logp, logp.min()),
+                                      prominence=0.6)
             peaks.extend(float(freq[p]) for p in pk)
             # the lowest peak that carries the response (within 20 dB of the strongest)
             strong = [float(freq[p]) for p in pk if P[p] >= 1e-2 * P[pk].max()]
@@ -577,8 +626,7 @@ def _analyse_spectra(recs: Sequence[Recording], dofs: Sequence[str],
             if above.size:
                 top = max(top or 0.0, float(freq[above[-1]]))
             lines.extend(rec_lines)
-            # how many integrations turn this quantity into a displacement
-            p_int = {"acc": 2, "vel": 1, "disp": 0}[qty]
+            # p_int integrations turn this quantity into a displacement
             if p_int and strong:
                 band = mask & (freq >= 0.5 * strong[0])
                 w = (2 * np.pi * freq[band]) ** (2 * p_int)
@@ -596,11 +644,11 @@ def _analyse_spectra(recs: Sequence[Recording], dofs: Sequence[str],
 
 
 def _stationary_lines(x: np.ndarray, fs: float, nper: int, freq: np.ndarray,
-                      P: np.ndarray, thr: float) -> list[float]:
+                      P: np.ndarray, thr: np.ndarray) -> list[float]:
     """Narrow peaks that do not decay while the record does (hum, tones): noise."""
     n = len(x)
     third = n // 3
-    pk, _ = signal.find_peaks(P, height=thr)
+    pk, _ = signal.find_peaks(np.where(P > thr, P, 0.0))
     if not pk.size:
         return []
     df = freq[1] - freq[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -18,6 +19,10 @@ import numpy as np
 from .elements import REGISTRY, ElementKind
 
 GROUND = "ground"
+_TOP_KEYS = frozenset({"name", "dofs", "mass", "elements", "parameters", "forces",
+                       "description", "notes"})
+_ELEMENT_KEYS = frozenset({"kind", "between", "params", "name", "description"})
+_PARAM_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 class SpecError(ValueError):
@@ -64,9 +69,11 @@ class Structure:
         """Read a TOML or JSON spec file."""
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_bytes().decode("utf-8-sig")
         except OSError as exc:
             raise SpecError(f"{path}: cannot read model spec ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise SpecError(f"{path}: not UTF-8 text (byte {exc.start})") from None
         if path.suffix.lower() == ".json":
             try:
                 data = json.loads(text)
@@ -89,11 +96,16 @@ class Structure:
         """Build and validate from the spec's dict form (the JSON body over HTTP)."""
         if not isinstance(data, Mapping):
             raise SpecError("model spec must be an object/table")
+        unknown_top = [k for k in data if k not in _TOP_KEYS]
+        if unknown_top:
+            raise SpecError(f"{unknown_top[0]}: unknown top-level key (known: "
+                            f"{', '.join(sorted(_TOP_KEYS))})")
         name = data.get("name", "model")
         if not isinstance(name, str) or not name:
             raise SpecError("'name' must be a non-empty string")
         dofs = data.get("dofs")
-        if not isinstance(dofs, list) or not dofs or not all(isinstance(d, str) and d for d in dofs):
+        if (not isinstance(dofs, list) or not dofs
+                or not all(isinstance(d, str) and d for d in dofs)):
             raise SpecError("'dofs' must be a non-empty list of DOF names")
         if len(set(dofs)) != len(dofs):
             raise SpecError(f"'dofs' has duplicate names: {dofs}")
@@ -132,8 +144,12 @@ class Structure:
             where = f"elements[{n}]"
             if not isinstance(el, Mapping):
                 raise SpecError(f"{where}: must be a table")
+            extra = [k for k in el if k not in _ELEMENT_KEYS]
+            if extra:
+                raise SpecError(f"{where}.{extra[0]}: unknown key (known: "
+                                f"{', '.join(sorted(_ELEMENT_KEYS))})")
             kind_name = el.get("kind")
-            if kind_name not in REGISTRY:
+            if not isinstance(kind_name, str) or kind_name not in REGISTRY:
                 raise SpecError(f"{where}.kind: unknown element kind {kind_name!r} "
                                 f"(known: {', '.join(sorted(REGISTRY))})")
             kind = REGISTRY[kind_name]
@@ -142,6 +158,9 @@ class Structure:
                     or not all(isinstance(b, str) for b in between)):
                 raise SpecError(f"{where}.between: must be two names [dof, dof or 'ground']")
             a, b = between
+            if a == GROUND and b in index:
+                raise SpecError(f"{where}.between: put the DOF first: [{b!r}, 'ground'] "
+                                "(d = q_i - q_j is measured from the first name)")
             if a not in index:
                 raise SpecError(f"{where}.between: {a!r} is not a DOF (dofs = {dofs})")
             if b != GROUND and b not in index:
@@ -162,8 +181,9 @@ class Structure:
                     value = _number(pname, f"{where}.params.{c}")
                     pname = f"_fixed_{n}_{c}"
                     param_in = {**param_in, pname: {"fixed": value}}
-                if not isinstance(pname, str) or not pname:
-                    raise SpecError(f"{where}.params.{c}: must be a parameter name")
+                if not isinstance(pname, str) or not _PARAM_RE.fullmatch(pname):
+                    raise SpecError(f"{where}.params.{c}: must be a parameter name (letters, "
+                                    f"digits, '_'), got {pname!r}")
                 names.append(pname)
                 if pname not in order:
                     order.append(pname)
@@ -181,8 +201,15 @@ class Structure:
         for d, setting in forces_in.items():
             if d not in index:
                 raise SpecError(f"forces.{d}: {d!r} is not a DOF (dofs = {dofs})")
+            if isinstance(setting, Mapping):
+                extra = [k for k in setting if k != "gain"]
+                if extra:
+                    raise SpecError(f"forces.{d}.{extra[0]}: unknown key (known: gain)")
             gain = setting.get("gain", 1.0) if isinstance(setting, Mapping) else setting
             if isinstance(gain, str):
+                if not _PARAM_RE.fullmatch(gain):
+                    raise SpecError(f"forces.{d}.gain: must be a number or a parameter name, "
+                                    f"got {gain!r}")
                 if gain not in order:
                     order.append(gain)
                 gains[d] = gain
@@ -208,11 +235,21 @@ class Structure:
             )
             if info.scale is not None and not info.scale > 0:
                 raise SpecError(f"{where}.scale: must be positive, got {info.scale}")
+            if info.lower is not None and info.upper is not None and not info.lower < info.upper:
+                raise SpecError(f"{where}: lower ({info.lower}) must be below upper "
+                                f"({info.upper})")
+            if info.fixed is not None and (
+                    (info.lower is not None and info.fixed < info.lower)
+                    or (info.upper is not None and info.fixed > info.upper)):
+                raise SpecError(f"{where}.fixed: {info.fixed} is outside [lower, upper]")
             parameters[pname] = info
         for pname in param_in:
             if pname not in parameters:
                 raise SpecError(f"parameters.{pname}: not used by any element or force gain")
-        spec = json.loads(json.dumps(dict(data)))
+        try:
+            spec = json.loads(json.dumps(dict(data)))
+        except (TypeError, ValueError) as exc:
+            raise SpecError(f"spec holds a value JSON cannot carry ({exc})") from None
         return cls(name, list(dofs), mass, elements, parameters, gains, spec)
 
     # ---------------------------------------------------------------- parameters
