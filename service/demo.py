@@ -13,7 +13,8 @@ what instruments give (``acc_LO``, ``acc_NO`` with 0.3 % white noise - relative 
 channel's peak - plus a 60 Hz hum of 0.02 m/s^2, random phase; ``force_NO`` with 0.2 %
 noise).  One record in ``validation_every`` is sent as validation.  After ``drop_after``
 records the LO's ground stiffness k1 drops by ``drop`` (15 %: a loosened support), but only
-once the service has converged - otherwise there is no reference to drift from.
+once the service's drift monitor has frozen its reference (after convergence) - otherwise
+there is nothing to drift from.
 """
 from __future__ import annotations
 
@@ -197,6 +198,9 @@ class DemoStreamer(threading.Thread):
         from clients.client import SivaClient, SivaClientError
 
         cfg = self.cfg
+        # the demo's own polling would otherwise fill the server console, one line per GET
+        logging.getLogger("httpx").setLevel(max(logging.WARNING,
+                                                logging.getLogger("httpx").level))
         try:
             with SivaClient(self.base_url, self.token, timeout=60.0) as client:
                 if not self._wait_healthy(client):
@@ -218,7 +222,7 @@ class DemoStreamer(threading.Thread):
                         self._halt.wait(min(cfg.interval_s, 0.5))
                         continue
                     if (self.drop_index is None and i >= cfg.drop_after
-                            and est is not None and est.get("converged")):
+                            and self._has_reference(client, est)):
                         self.drop_index = i
                         log.warning("demo: %s drops by %.0f %% after record %d",
                                     cfg.drop_parameter, cfg.drop * 100, i)
@@ -230,6 +234,8 @@ class DemoStreamer(threading.Thread):
                     ev = DemoEvent(i, role, amp, self.drop_index is not None, ack.get("id"),
                                    epoch, time.time())
                     self.events.append(ev)
+                    log.info("demo: record %d sent (%s, hammer %.0f N%s) at epoch %d", i, role,
+                             amp, ", after the drop" if ev.dropped else "", epoch)
                     last_epoch = epoch
                     if self._on_event:
                         self._on_event(ev)
@@ -245,6 +251,19 @@ class DemoStreamer(threading.Thread):
                 return True
             self._halt.wait(0.2)
         return False
+
+    def _has_reference(self, client: Any, est: dict[str, Any] | None) -> bool:
+        """Whether drift monitoring has frozen its reference (else a change cannot alarm);
+        a service without a drift report falls back to "the estimate has converged"."""
+        from clients.client import SivaClientError
+
+        if est is None or not est.get("converged"):
+            return False
+        try:
+            report = client.drift(self.cfg.system)
+        except SivaClientError:
+            return True
+        return "reference" not in report or report["reference"] is not None
 
     def _estimate(self, client: Any) -> dict[str, Any] | None:
         from clients.client import SivaClientError

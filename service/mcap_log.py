@@ -157,6 +157,8 @@ class _SystemLog:
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time = 0
+        self.lock = threading.Lock()  # one writer at a time per file; files are independent
+        self.has_spec = False
         self._sync()
 
     def _channel(self, topic: str) -> int:
@@ -265,7 +267,8 @@ class EventLog:
             logs, self._logs = self._logs, {}
         for sl in logs.values():
             try:
-                sl.close()
+                with sl.lock:  # waits for a write in progress
+                    sl.close()
             except OSError as exc:  # the data is already fsync'ed; recover() can finish it
                 log.warning("cannot finish %s: %s", sl.path, exc)
 
@@ -277,18 +280,34 @@ class EventLog:
 
     # -- internals
     def _write(self, system: str, topic: str, event: BaseModel) -> None:
+        retired: _SystemLog | None = None
         with self._lock:
             if self._closed:
                 log.warning("event log closed; dropping %s event of %r", topic, system)
                 return
             sl = self._logs.get(system)
+            if sl is not None and topic == TOPIC_SPEC and sl.has_spec:
+                # a second spec in one process: the system was deleted and created again.
+                # A new file keeps "one file = one incarnation" for replay.
+                retired, sl = sl, None
             if sl is None:
-                path = self.root / _safe(system) / f"{self._started}-{os.getpid()}.mcap"
+                stamp = (self._started if retired is None else
+                         datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ"))
+                path = self.root / _safe(system) / f"{stamp}-{os.getpid()}.mcap"
                 sl = _SystemLog(path, system, {"started": self._started, "pid": os.getpid(),
                                                **{f"settings.{k}": v
                                                   for k, v in self.settings.items()}})
                 self._logs[system] = sl
+            sl.lock.acquire()
+        try:
+            if retired is not None:
+                with retired.lock:
+                    retired.close()
             sl.write(topic, event)
+            if topic == TOPIC_SPEC:
+                sl.has_spec = True
+        finally:
+            sl.lock.release()
 
 
 def _writer_alive(path: Path) -> bool:

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import types
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -290,7 +289,7 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     the last snapshot the live service logged (``max_diff_in_std``: the largest difference
     of a parameter mean, in units of that parameter's std; 0 when identical).
     """
-    from .worker import SystemWorker, estimate_view, jsonable
+    from .worker import estimate_parameters, estimate_view, jsonable
 
     files = log_files(path)
     plan = _plan(files)
@@ -299,8 +298,7 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     if trainer is None:
         raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
                           "both a train and a validation recording)")
-    shim = types.SimpleNamespace(structure=rp.structure, trainer=trainer)
-    params, source = SystemWorker._estimate(shim)  # the service's own read-out
+    params, source = estimate_parameters(rp.structure, trainer)  # the service's own read-out
     disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
     snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
             "epoch": int(trainer.epoch), "converged": bool(trainer.converged),

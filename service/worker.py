@@ -201,6 +201,11 @@ class SystemWorker:
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
+        # the OpenMP thread count is per thread: set it where the training runs, so the
+        # live run matches a replay bit for bit
+        import torch
+
+        torch.set_num_threads(max(1, self.settings.torch_threads or 1))
         while self.trainer is None and not self._stop.is_set():
             self._stop.wait(10.0)
             try:
@@ -361,7 +366,8 @@ class SystemWorker:
         if train and val and (changed or getattr(self.trainer, "train", None) is None):
             self.trainer.set_data([self._states[i] for i in train], [self._states[i] for i in val])
             if self.events is not None:
-                self.events.log_dataset(self.name, int(self.trainer.epoch), train, val)
+                self.events.log_dataset(self.name, int(self.trainer.epoch), train, val,
+                                        processing=self._proc)
 
     # ------------------------------------------------------------------ snapshots
     def _base_snapshot(self) -> dict[str, Any]:
@@ -371,18 +377,7 @@ class SystemWorker:
                 "time": time.time()}
 
     def _estimate(self) -> tuple[dict[str, Any], str | None]:
-        """Parameters {mean, std, ci95, ess, n}: the Approach II ensemble once converged,
-        before that the spread of the generator's output (Approach I sampling)."""
-        free = self.structure.free
-        tr = self.trainer
-        summary = tr.ensemble.summary(free) if len(tr.ensemble) >= 2 else {}
-        if summary:
-            return summary, "approach_II"
-        if tr.epoch == 0 or not getattr(tr, "initialised", True):
-            return {}, None
-        from siva_core._impl.ensemble import normal_summary
-
-        return normal_summary(tr.sample(256), free, ess=False), "generator"
+        return estimate_parameters(self.structure, self.trainer)
 
     def _publish(self, observe: bool = False) -> None:
         snap = self._base_snapshot()
@@ -501,3 +496,18 @@ def default_trainer(structure: Structure, settings: Settings) -> Any:
     if preset is None:
         raise ValueError(f"unknown SIVA preset {settings.preset!r} (fast, paper)")
     return SivaTrainer(structure, preset(seed=settings.seed))
+
+
+def estimate_parameters(structure: Structure, tr: Any) -> tuple[dict[str, Any], str | None]:
+    """Parameters {mean, std, ci95, ess, n}: the Approach II ensemble once converged,
+    before that the spread of the generator's output (Approach I sampling).  Shared by the
+    live worker and ``siva replay`` so both read out the same way."""
+    free = structure.free
+    summary = tr.ensemble.summary(free) if len(tr.ensemble) >= 2 else {}
+    if summary:
+        return summary, "approach_II"
+    if tr.epoch == 0 or not getattr(tr, "initialised", True):
+        return {}, None
+    from siva_core._impl.ensemble import normal_summary
+
+    return normal_summary(tr.sample(256), free, ess=False), "generator"

@@ -199,6 +199,20 @@ def test_files_per_system_and_per_process_start(tmp_path: Path) -> None:
     assert len(files) == 2 and all(is_finished(f) for f in files)
 
 
+def test_recreated_system_starts_a_new_file(tmp_path: Path) -> None:
+    ev = EventLog(tmp_path)
+    ev.log_spec("s", SPEC)
+    ev.log_recording("s", "r1", "train", CSV, "csv", 0)
+    first = ev.path("s")
+    ev.log_spec("s", {**SPEC, "mass": {"x": 0.1}})  # DELETE + PUT in the same process
+    second = ev.path("s")
+    ev.log_recording("s", "r1", "train", CSV + b"\n", "csv", 0)
+    ev.close()
+    assert first != second and is_finished(first) and is_finished(second)
+    assert [e.topic for e in read_events(first)] == [TOPIC_SPEC, TOPIC_RECORDING]
+    assert read_events(second)[0].event.spec["mass"] == {"x": 0.1}
+
+
 def test_closed_log_drops_events_instead_of_raising(tmp_path: Path) -> None:
     ev = EventLog(tmp_path)
     ev.log_spec("s", SPEC)

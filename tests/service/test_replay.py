@@ -161,10 +161,8 @@ def test_fixture_replays_to_the_logged_estimate() -> None:
     # with the trainer code the fixture was made with, the replay is exact
     cmp = out["replay"]["compared_to_log"]
     assert cmp["epoch"] == logged["epoch"]
-    if not cmp["identical"]:
-        pytest.xfail("training changed since the fixture was made (still within spread), or "
-                     + _THREADS_NOTE + "; regenerate: python tests/service/test_replay.py "
-                     "--regenerate")
+    assert cmp["identical"], ("not identical: if the trainer changed since the fixture was made, "
+                              "regenerate: python tests/service/test_replay.py --regenerate")
 
 
 def test_crash_then_resume_replays_across_both_logs() -> None:
@@ -178,8 +176,7 @@ def test_crash_then_resume_replays_across_both_logs() -> None:
     assert out["epoch"] == logged["epoch"]
     assert out["n_recordings"] == logged["n_recordings"] == {"train": 2, "validation": 1}
     _assert_within_spread(out, logged)
-    if not out["replay"]["compared_to_log"]["identical"]:
-        pytest.xfail(_THREADS_NOTE)
+    assert out["replay"]["compared_to_log"]["identical"], _THREADS_NOTE
     # the killed run alone (an unfinished file) replays to its own last snapshot
     alone = replay(c1)
     assert alone["epoch"] == killed_at
@@ -208,8 +205,7 @@ def test_live_service_run_replays_exactly(tmp_path: Path) -> None:
     assert out["epoch"] == logged["epoch"] >= 30
     _assert_within_spread(out, logged)  # the requirement
     cmp = out["replay"]["compared_to_log"]
-    if not cmp["identical"]:  # the aim; see the docstring of _THREADS_NOTE
-        pytest.xfail(_THREADS_NOTE + f" ({cmp})")
+    assert cmp["identical"], _THREADS_NOTE + f" ({cmp})"
     for p, s in logged["parameters"].items():
         assert out["parameters"][p]["mean"] == s["mean"] and out["parameters"][p]["std"] == s["std"]
     assert out["discriminator"]["loss_d"] == pytest.approx(logged["discriminator"]["loss_d"],
