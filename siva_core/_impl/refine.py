@@ -8,14 +8,23 @@ its force and initial state, the simulated signals are put into a Recording with
 channels as the measured one, and that record goes through the *same* chain.  Whatever the
 chain does to the measurement it also does to the simulation, so the comparison is fair.
 
+What is simulated (``simulate.initial_state_and_force``): the whole raw record, from the
+chain's derived state at its first sample, or from rest for a pre-triggered impact (a
+zero-phase band-pass smears the impact backwards into that state), driven by the measured
+force gated to its pulse (force-sensor noise between hits is not a force).  The chain is
+then run on all parameter sets at once (``Processing.apply_simulated``), so a chain that
+starts after the impact or decimates is handled like any other.
+
 ``refine`` minimises those residuals with ``scipy.optimize.least_squares`` (trust-region
 reflective), the finite-difference Jacobian computed from one batched simulation of n+1
-parameter sets, and reports the Gauss-Newton covariance.  Two measures make it converge
-from starts 10-20 % off on strongly nonlinear records (see ``refine``): log-scaled
-parameters and a growing fitting horizon.
+parameter sets, and reports the Gauss-Newton covariance.  What makes it converge from
+starts 10-20 % off on strongly nonlinear records (see ``refine``): log-scaled parameters
+and a growing fitting horizon; and, optionally, a per-record force scale as a nuisance
+parameter for impact records, whose response is very sensitive to the impulse.
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 import warnings
@@ -28,9 +37,14 @@ from scipy.optimize import least_squares
 from .processing import Processing, States
 from .recording import Recording
 from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
-                       simulate, simulated_recording)
+                       simulate, stage_force)
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
+#: a log-scaled parameter stays within this factor of theta0 (see ``_x_bounds``)
+LOG_RANGE = 20.0
+#: full-record cost below which theta0 is taken to be in the basin (no growing horizons):
+#: a mean NMSE of 0.05 means no cycle has slipped anywhere in the records
+HORIZON_SKIP_COST = 0.05
 
 
 # ---------------------------------------------------------------------------- problem
@@ -46,6 +60,15 @@ class _Record:
     target: np.ndarray           # (T', n_dof) processed measured values of those quantities
     rms: np.ndarray              # (n_dof,) RMS of each target column
     substeps: int = 1
+    _staged: tuple[int, str, np.ndarray] | None = None
+
+    def staged(self, interp: str) -> np.ndarray | None:
+        """The force on the RK4 stage grid, computed once per (substeps, interp)."""
+        if self.force is None:
+            return None
+        if self._staged is None or self._staged[:2] != (self.substeps, interp):
+            self._staged = (self.substeps, interp, stage_force(self.force, self.substeps, interp))
+        return self._staged[2]
 
 
 @dataclass
@@ -62,6 +85,14 @@ class OutputErrorProblem:
     processing: Processing
     backend: str = "numpy"
     interp: str = "linear"
+    _chain: Processing | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def chain(self) -> Processing:
+        """The processing actually run (the same settings, memoised filter designs)."""
+        if self._chain is None:
+            self._chain = fast_chain(self.processing)
+        return self._chain
 
     @property
     def n_residuals(self) -> int:
@@ -80,6 +111,7 @@ class OutputErrorProblem:
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
         ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
         processing = processing or Processing()
+        chain = fast_chain(processing)
         recs = [records] if isinstance(records, Recording) else list(records)
         if not recs:
             raise ValueError("output error needs at least one record")
@@ -97,7 +129,7 @@ class OutputErrorProblem:
         for rec, m in zip(recs, per_rec):
             q0, v0, force = initial_state_and_force(structure, rec, processing,
                                                     initial=initial, force_gate=force_gate)
-            meas = processing.apply(rec, structure.dofs)
+            meas = chain.apply(rec, structure.dofs)
             qtys = _quantities(rec, structure.dofs, quantity)
             target = _extract(meas, qtys)
             rms = np.sqrt(np.mean(target ** 2, axis=0))
@@ -111,24 +143,38 @@ class OutputErrorProblem:
                 m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
                                   omega_h=omega_h, backend=use, interp=interp)
             prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m))
-        return cls(structure, prepared, processing, use, interp)
+        return cls(structure, prepared, processing, use, interp, chain)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
                          force_scale: np.ndarray | None = None) -> list[States | None]:
-        """Record ``k`` simulated for each set and passed through the chain (None if the
-        simulation diverged)."""
+        """Record ``k`` simulated for each set and passed through the chain, one States per
+        set (None if the simulation diverged)."""
+        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale)
+        out: list[States | None] = []
+        for b in range(len(ok)):
+            if not ok[b]:
+                out.append(None)
+                continue
+            out.append(States(st.t, st.q[b], st.v[b], st.a[b], st.f, st.name, st.has_force,
+                              st.start_index, st.decimation))
+        return out
+
+    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None
+                   ) -> tuple[States, np.ndarray]:
+        """Batched: simulate record ``k`` for all sets, run the chain once on (B, T, n)
+        arrays (``Processing.apply_simulated``).  Returns (States with (B, T', n) arrays,
+        (B,) mask of sets whose simulation stayed finite)."""
         r = self.records[k]
         sim = simulate(self.structure, thetas, r.rec.time, r.q0, r.v0, r.force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
-                       force_scale=force_scale)
-        out: list[States | None] = []
-        for b in range(thetas.shape[0]):
-            if not (np.all(np.isfinite(sim.q[b])) and np.all(np.isfinite(sim.v[b]))):
-                out.append(None)
-                continue
-            srec = simulated_recording(r.rec, self.structure, sim.q[b], sim.v[b], sim.a[b])
-            out.append(self.processing.apply(srec, self.structure.dofs))
-        return out
+                       force_scale=force_scale, staged_force=r.staged(self.interp))
+        q, v, a = sim.q, sim.v, sim.a
+        ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
+              & np.all(np.isfinite(a), axis=(1, 2)))
+        if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
+            q, v, a = (np.where(ok[:, None, None], x, 0.0) for x in (q, v, a))
+        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a)
+        return st, ok
 
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None) -> np.ndarray:
         """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
@@ -142,14 +188,13 @@ class OutputErrorProblem:
         groups = self.n_groups
         for k, r in enumerate(self.records):
             fs = None if force_scales is None else force_scales[:, k]
-            states = self.simulated_states(th, k, fs)
+            st, ok = self._processed(th, k, fs)
             size = r.target.size
             w = 1.0 / (r.rms * math.sqrt(r.target.shape[0] * groups))
-            for b, st in enumerate(states):
-                if st is None:
-                    out[b, col:col + size] = np.nan
-                    continue
-                out[b, col:col + size] = ((_extract(st, r.quantities) - r.target) * w).ravel()
+            sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
+                           axis=-1)
+            out[:, col:col + size] = ((sim - r.target) * w).reshape(B, size)
+            out[~ok, col:col + size] = np.nan
             col += size
         return out
 
@@ -164,16 +209,44 @@ class OutputErrorProblem:
         (the raw record is cut after the matching raw sample, then re-processed)."""
         recs = []
         for r, nk in zip(self.records, n_keep):
-            st = self.processing.apply(r.rec, self.structure.dofs)
+            st = self.chain.apply(r.rec, self.structure.dofs)
             stop = st.start_index + st.decimation * int(nk)
             rec = r.rec.slice(0, min(len(r.rec), stop + 1))
-            meas = self.processing.apply(rec, self.structure.dofs)
+            meas = self.chain.apply(rec, self.structure.dofs)
             target = _extract(meas, r.quantities)
             force = None if r.force is None else r.force[:len(rec)]
             recs.append(_Record(rec, r.q0, r.v0, force, r.quantities, target,
                                 np.sqrt(np.mean(target ** 2, axis=0)), r.substeps))
         return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
-                                  self.interp)
+                                  self.interp, self.chain)
+
+
+# ---------------------------------------------------------------------------- fast chain
+def fast_chain(processing: Processing) -> Processing:
+    """A copy of the chain whose filter designs are memoised.
+
+    ``Processing._sos`` designs the Butterworth filter on every call, which is most of the
+    chain's cost when it runs thousands of times on short records (refine, diagnose).  The
+    copy's class subclasses the original's, so all other behaviour is the original's.  Use
+    it internally only: dataclass equality is class-sensitive.
+    """
+    if getattr(processing, "_siva_fast", False):
+        return processing
+    base = type(processing)
+    base_sos = base._sos
+
+    def _sos(self: Processing, kind: str, cut: Any, fs: float) -> Any:
+        cache = self.__dict__.setdefault("_siva_sos_cache", {})
+        key = (kind, tuple(cut) if isinstance(cut, (list, tuple)) else cut, float(fs))
+        if key not in cache:
+            cache[key] = base_sos(self, kind, cut, fs)
+        return cache[key]
+
+    fast_cls = type(f"Fast{base.__name__}", (base,), {"_sos": _sos, "_siva_fast": True})
+    out = copy.copy(processing)
+    out.__class__ = fast_cls
+    out.__dict__.pop("_siva_sos_cache", None)
+    return out
 
 
 def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
@@ -243,7 +316,7 @@ def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[
         if chain:
             sims = [None if st is None else st.q for st in prob.simulated_states(th, k)]
         else:
-            meas = prob.processing.apply(r.rec, structure.dofs)
+            meas = prob.chain.apply(r.rec, structure.dofs)
             sim = simulate(structure, th, r.rec.time, r.q0, r.v0, r.force, substeps=r.substeps,
                            backend=prob.backend, interp=prob.interp)
             sl = slice(meas.start_index, meas.start_index + meas.decimation * len(meas),
@@ -316,9 +389,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``horizons``: fit growing leading parts of the records first.  Long oscillatory records
     have an output-error landscape with local minima once the start's phase error reaches
     ~half a period by the end (a Duffing start 5 % off gets stuck); a short horizon is
-    benign and brings theta close enough for the next.  "auto": the first horizon holds ~5
-    oscillation cycles of the measured signal (zero crossings), each next one 3x more, up
-    to the full records; a list of fractions of the (post-start) records; None = full only.
+    benign and brings theta close enough for the next.  "auto": the full records only when
+    theta0 already simulates them to a mean NMSE < 0.05 (no cycle slipped, the basin is
+    reached); otherwise a first horizon of 2.5 oscillation cycles of the measured signal
+    (zero crossings, at least 8 samples per variable), each next one 1.6x longer, up to the
+    full records.  Or a list of fractions of the processed records; None = full only.
     ``max_nfev`` bounds the cost evaluations of the final (full) stage; earlier stages get
     ``max(5, max_nfev // 4)`` each.
 
@@ -376,7 +451,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     x = np.clip(x, lower, upper)
 
     # ---- horizons
-    fractions = _horizons(full, horizons)
+    fractions = _horizons(full, horizons, to_theta, x, n_x)
     nfev = njev = 0
     res = None
     prob = full
@@ -401,11 +476,12 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     dth = np.where(is_log, theta, scale)
     if fit_force_scale:
         dth = np.concatenate([dth, fsc[0]])
-    J = res.jac / dth
+    # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
+    # (inverting J^T J in theta units would mix 1e7 and 1e0 scales and lose the small ones)
     r = res.fun
     dof = max(1, r.size - n_x)
     s2 = float(r @ r) / dof
-    cov_full = s2 * _pinv_sym(J.T @ J)
+    cov_full = s2 * _pinv_sym(res.jac.T @ res.jac) * np.outer(dth, dth)
     cov = cov_full[:len(free), :len(free)]
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ci = np.stack([theta - 1.96 * std, theta + 1.96 * std], axis=1)
@@ -446,15 +522,20 @@ def _log_mask(structure: Any, free: list[str], theta0: np.ndarray,
 
 def _x_bounds(theta0: np.ndarray, scale: np.ndarray, is_log: np.ndarray, lo: np.ndarray,
               hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    xl = np.full(theta0.size, -np.inf)
-    xh = np.full(theta0.size, np.inf)
+    """Bounds of the scaled variables.  A log-scaled parameter is also kept within a factor
+    LOG_RANGE of theta0: exp(x) -> 0 has a vanishing gradient, so a parameter an early,
+    uninformative stage pushed towards 0 could never come back."""
+    xl = np.where(is_log, -math.log(LOG_RANGE), -np.inf)
+    xh = np.where(is_log, math.log(LOG_RANGE), np.inf)
     with np.errstate(all="ignore"):
         for k in range(theta0.size):
             if is_log[k]:
                 a, b = lo[k] / theta0[k], hi[k] / theta0[k]
                 a, b = min(a, b), max(a, b)  # a negative theta0 flips the ratios
-                xl[k] = math.log(a) if a > 0 else -np.inf
-                xh[k] = math.log(b) if b > 0 and np.isfinite(b) else np.inf
+                if a > 0:
+                    xl[k] = max(xl[k], math.log(a))
+                if b > 0 and np.isfinite(b):
+                    xh[k] = min(xh[k], math.log(b))
             else:
                 xl[k] = (lo[k] - theta0[k]) / scale[k]
                 xh[k] = (hi[k] - theta0[k]) / scale[k]
@@ -464,56 +545,64 @@ def _x_bounds(theta0: np.ndarray, scale: np.ndarray, is_log: np.ndarray, lo: np.
     return xl, xh
 
 
-def _horizons(prob: OutputErrorProblem, horizons: Sequence[float] | str | None) -> list[float]:
+def _horizons(prob: OutputErrorProblem, horizons: Sequence[float] | str | None,
+              to_theta: Any, x0: np.ndarray, n_x: int) -> list[float]:
     if horizons is None:
         return [1.0]
     if isinstance(horizons, str):
         if horizons != "auto":
             raise ValueError(f"horizons must be 'auto', None or fractions, got {horizons!r}")
-        return _auto_horizons(prob)
+        th, fsc = to_theta(x0[None])
+        cost0 = float(np.sum(prob.residuals(th, fsc) ** 2))
+        if np.isfinite(cost0) and cost0 < HORIZON_SKIP_COST:
+            return [1.0]
+        return _auto_horizons(prob, min_samples=8 * n_x)
     fr = sorted(float(f) for f in horizons)
     if not fr or not all(0 < f <= 1 for f in fr):
         raise ValueError(f"horizons must be fractions in (0, 1], got {horizons}")
     return fr if fr[-1] == 1.0 else fr + [1.0]
 
 
-def _auto_horizons(prob: OutputErrorProblem, first_cycles: float = 5.0,
-                   growth: float = 3.0) -> list[float]:
-    """Fractions of the records holding 5, 15, 45, ... oscillation cycles (hysteresis zero
-    crossings at 10 % of the peak, averaged over DOFs and taken for the longest record)."""
+def _auto_horizons(prob: OutputErrorProblem, first_cycles: float = 2.5,
+                   growth: float = 1.6, min_samples: int = 0) -> list[float]:
+    """Fractions of the records holding 2.5, 4, 6.4, ... oscillation cycles of the measured
+    signal (hysteresis zero crossings at 10 % of the peak, averaged over DOFs; the longest
+    record decides).  Starting at a couple of cycles matters: a start 10 % off in a
+    power-law exponent changes the nonlinear force 2.5x, and only the first cycles are
+    then still in phase (LO-NO: a first horizon of 5 cycles already ends in a wrong
+    minimum, 2.5 cycles does not).  Each horizon keeps at least ``min_samples`` samples
+    after the signal's onset, so that every parameter has data to act on."""
     counts = []
     for r in prob.records:
         c = np.zeros(len(r.target))
         for k in range(r.target.shape[1]):
-            x = r.target[:, k]
-            thr = 0.1 * np.max(np.abs(x))
-            state = 0
-            n = np.zeros(len(x))
-            hits = 0
-            for i, xi in enumerate(x):  # hysteresis crossing count; O(T) once per refine
-                if xi > thr and state <= 0:
-                    hits += state < 0
-                    state = 1
-                elif xi < -thr and state >= 0:
-                    hits += state > 0
-                    state = -1
-                n[i] = hits
-            c += n / r.target.shape[1]
+            c += _crossings(r.target[:, k]) / r.target.shape[1]
         counts.append(c)
     fractions: list[float] = []
     need = 2 * first_cycles
     while True:
-        frs = []
-        for c in counts:
-            idx = np.searchsorted(c, need)
-            frs.append(min(1.0, (idx + 1) / len(c)))
-        f = max(frs)
-        if f >= 0.7:
+        f = max(min(1.0, (max(int(np.searchsorted(c, need)),
+                              int(np.searchsorted(c, 0.5)) + min_samples) + 1) / len(c))
+                for c in counts)
+        if f >= 0.75:
             break
-        if not fractions or f > fractions[-1] * 1.5:
+        if not fractions or f >= fractions[-1] * 1.25:
             fractions.append(f)
         need *= growth
     return fractions + [1.0]
+
+
+def _crossings(x: np.ndarray, level: float = 0.1) -> np.ndarray:
+    """Cumulative count of zero crossings with hysteresis +-level*max|x| (noise-proof)."""
+    thr = level * float(np.max(np.abs(x)))
+    s = np.where(x > thr, 1, np.where(x < -thr, -1, 0))
+    idx = np.flatnonzero(s)
+    out = np.zeros(len(x))
+    if idx.size < 2:
+        return out
+    flips = idx[1:][s[idx[1:]] != s[idx[:-1]]]
+    out[flips] = 1
+    return np.cumsum(out)
 
 
 def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.ndarray,
