@@ -62,7 +62,6 @@ def test_duffing_validation_and_discriminator_reported(duffing_fit):
     assert {"least_squares", "sindy"} <= set(res.baselines)
 
 
-@pytest.mark.slow
 def test_lono_as_measured_best_within_tolerance():
     d = DATA / "lono"
     st, est = _fit("lono.toml", [d / "impact_530N.csv"], [d / "impact_37N.csv", d / "impact_899N.csv"])
@@ -72,7 +71,11 @@ def test_lono_as_measured_best_within_tolerance():
         tol = 0.10 if p in ("b1", "b2") else 0.03
         assert out[p]["best"] == pytest.approx(exact, rel=tol), (p, out[p]["best"], exact)
         lo, hi = out[p]["best_ci95"]
-        assert lo <= out[p]["best"] <= hi and hi > lo
+        assert lo < exact < hi, (p, lo, exact, hi)  # measured: the truth lies inside every CI
+    # SIVA's own approaches carry the processing chain's bias; best must beat them on validation
+    val = est.result_.metrics["validation"]
+    assert val["best"]["output_error"] < min(val[a]["output_error"] for a in
+                                             ("approach_I", "approach_II", "approach_III"))
 
 
 def _siva(*args: str, **kw) -> subprocess.CompletedProcess:

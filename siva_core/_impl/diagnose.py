@@ -41,7 +41,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -71,6 +71,12 @@ class DiagnoseSettings:
     record_tolerance: no validation record may get worse by more than this fraction.
     noise_factor: the nominal validation gap must exceed this multiple of the estimated
         noise floor, else the nominal model already fits to the noise level (null).
+    gap_min: ... and it must exceed this normalised output error (0.005 = 7 % RMS error):
+        below it the nominal model fits as well as parameter extrapolation from the train
+        amplitudes allows, and any flexible element "explains" that residue.
+    ee_strong: a candidate explaining at least this share of the equation-error residual
+        is fitted too, whatever its output-error score (strong effects such as a clearance
+        can keep the nominal output-error fit so far off that its linearisation misleads).
     effects: names of the effects to try (default: all registered).
     nominal_start: initial values of the nominal parameters (skips the least-squares start).
     """
@@ -78,11 +84,13 @@ class DiagnoseSettings:
     top_k: int = 3
     max_per_kind: int = 2
     nominal_nfev: int = 40
-    fit_nfev: int = 25
-    closure_min: float = 0.3
+    fit_nfev: int = 40
+    closure_min: float = 0.5
     separation: float = 0.75
     record_tolerance: float = 0.05
     noise_factor: float = 2.0
+    gap_min: float = 0.005
+    ee_strong: float = 0.25
     effects: Sequence[str] | None = None
     nominal_start: Mapping[str, float] | None = None
 
@@ -119,6 +127,10 @@ class Candidate:
     per_record: list[dict[str, Any]] = field(default_factory=list)
     fit_time_s: float = 0.0
     note: str = ""
+    ee_score: float = 0.0         # share of the equation-error residual explained
+    ee_start: tuple[dict[str, float], dict[str, float]] | None = None  # joint equation-
+    # error solution (nominal parameters, new coefficients): a fit start
+    ee_shape: dict[str, float] = field(default_factory=dict)
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:
@@ -175,6 +187,7 @@ class Diagnosis:
             "screening": [{"kind": c.effect.kind, "between": list(c.loc.between),
                            "shape": _clean(c.shape), "score": _num(c.score),
                            "estimate": _num(c.estimate), "admissible": c.admissible,
+                           "ee_score": _num(c.ee_score),
                            "fitted": c.fitted} for c in self.screened],
             "processing": self.processing.describe() if hasattr(self.processing, "describe")
             else repr(self.processing),
@@ -276,6 +289,13 @@ def _locations(structure: Structure) -> list[Location]:
     return out
 
 
+def candidate_sites(structure: Structure, effects: Sequence[Effect]
+                    ) -> list[tuple[Effect, Location]]:
+    """Every effect at every location, minus the kinds the model already has there."""
+    return [(eff, loc) for loc in _locations(structure) for eff in effects
+            if not _has_element(structure, eff.kind, loc)]
+
+
 def _has_element(structure: Structure, kind: str, loc: Location) -> bool:
     for el in structure.elements:
         if el.kind.name != kind:
@@ -332,84 +352,139 @@ def augmented(structure: Structure, effect: Effect, loc: Location,
 
 
 # ============================================================================ nominal fit
+def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
+    """A start worth simulating: finite, linear modes below 0.4 x the sampling rate and
+    not unstable.  Least squares on badly derived states can return stiffnesses whose
+    modes the records cannot even resolve; such a start would only force huge substeps."""
+    if not np.all(np.isfinite(theta)):
+        return False
+    try:
+        modes = structure.linear_modes(theta)
+    except Exception:  # noqa: BLE001 - a start whose linearisation fails is not plausible
+        return False
+    return (all(f < 0.4 * fs for f in modes["frequency_hz"])
+            and all(z > -1e-3 for z in modes["damping_ratio"]))
+
+
+@dataclass
+class NominalFit:
+    """The nominal output-error fit and the equation-error fit it started from (kept for
+    the equation-error screen: its states, chain and parameters)."""
+
+    theta: np.ndarray
+    train_cost: float
+    start: str
+    ls_theta: np.ndarray | None = None
+    ls_chain: Processing | None = None
+
+
 def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processing,
-                settings: DiagnoseSettings, progress: Progress | None = None
-                ) -> tuple[np.ndarray, float, str]:
+                settings: DiagnoseSettings, progress: Progress | None = None) -> NominalFit:
     """Output-error fit of the model as given on the train records.
 
     Start: the user's ``nominal_start``, else equation-error least squares on the train
-    states of the chosen chain and, when that chain does not make integration safe, of the
-    data-driven ``Processing.auto`` chain (least squares on drifting integrals is useless);
-    the start with the lowest output error is refined (``refine``, growing horizons).
-    Returns (theta, train cost, how it started).
+    states of the chosen chain and, when different, of the data-driven ``Processing.auto``
+    chain (least squares on states integrated without high-pass drifts is useless); each
+    plausible start is costed alone (a batch would take the substeps of the stiffest) and
+    the best is refined (``refine``, growing horizons).
     """
     from .baselines import least_squares
     from .refine import output_error, refine
 
-    starts: list[tuple[str, np.ndarray]] = []
+    fs = min(r.fs for r in train)
+    starts: list[tuple[str, np.ndarray, Processing | None]] = []
     if settings.nominal_start is not None:
-        starts.append(("given", structure.vector(settings.nominal_start)))
-    else:
-        chains: list[tuple[str, Processing]] = [("least squares", proc)]
+        starts.append(("given", structure.vector(settings.nominal_start), None))
+    chains: list[tuple[str, Processing]] = [("least squares", proc)]
+    try:
+        auto = Processing.auto(list(train), structure.dofs)
+        if auto != proc:
+            chains.append(("least squares (auto chain)", auto))
+    except Exception:  # noqa: BLE001 - an optional second start
+        pass
+    for label, chain in chains:
         try:
-            auto = Processing.auto(list(train), structure.dofs)
-            if auto != proc:
-                chains.append(("least squares (auto chain)", auto))
-        except Exception:  # noqa: BLE001 - an optional second start
-            pass
-        for label, chain in chains:
-            try:
-                fit = least_squares(structure, [chain.apply(r, structure.dofs) for r in train])
-                th = structure.vector(fit)
-            except Exception as exc:  # noqa: BLE001 - try the next start
-                _say(progress, f"nominal start {label} failed: {exc}")
-                continue
-            if np.all(np.isfinite(th)):
-                starts.append((label, th))
+            fit = least_squares(structure, [chain.apply(r, structure.dofs) for r in train])
+            th = structure.vector(fit)
+        except Exception as exc:  # noqa: BLE001 - try the next start
+            _say(progress, f"nominal start {label} failed: {exc}")
+            continue
+        if _plausible(structure, th, fs):
+            starts.append((label, th, chain))
+        else:
+            _say(progress, f"nominal start {label} rejected (implausible: "
+                           f"{structure.as_dict(th)})")
     if not starts:
-        raise ValueError("diagnose: no usable start for the nominal fit (least squares "
-                         "failed); pass initial values")
-    costs = output_error(structure, np.stack([s for _, s in starts]), list(train), proc)
-    order = np.argsort(costs)
-    best = int(order[0])
+        raise ValueError("diagnose: no usable start for the nominal fit (least squares gave "
+                         "nothing plausible); pass initial values")
+    costs = []
+    for _, th, _ in starts:
+        try:
+            costs.append(float(output_error(structure, th[None], list(train), proc)[0]))
+        except Exception:  # noqa: BLE001 - a start that cannot be simulated is skipped
+            costs.append(math.inf)
+    best = int(np.argmin(costs))
     if not np.isfinite(costs[best]):
         raise ValueError("diagnose: the nominal model diverges from every start")
-    label, th0 = starts[best]
+    label, th0, _ = starts[best]
+    ls = [(c, th, ch) for c, (_, th, ch) in zip(costs, starts) if ch is not None]
+    ls_cost, ls_theta, ls_chain = min(ls, key=lambda x: x[0]) if ls else (0, None, None)
     _say(progress, f"nominal start: {label} (train cost {costs[best]:.4g})")
     res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev)
-    c = output_error(structure, np.stack([th0, res.theta]), list(train), proc)
-    theta = res.theta if c[1] <= c[0] else th0
-    return theta, float(min(c)), label
+    c = float(output_error(structure, res.theta[None], list(train), proc)[0])
+    if c <= costs[best]:
+        return NominalFit(res.theta, c, label, ls_theta, ls_chain)
+    return NominalFit(th0, costs[best], label, ls_theta, ls_chain)
 
 
 # ============================================================================ screening
-def _amplitudes(outs: _Outputs, theta: np.ndarray, loc: Location) -> tuple[Amplitudes, list]:
-    """Relative displacement/velocity at ``loc`` along the nominal simulation of each train
-    record (full rate, the signals the element would see)."""
-    dmax = vmax = 0.0
-    d2 = v2 = 0.0
-    n = 0
+@dataclass
+class _Nominal:
+    """The nominal fit as the screening and the candidate fits see it: raw (full-rate)
+    simulations of the train records, amplitudes per location, a force scale."""
+
+    theta: np.ndarray
+    outs: _Outputs
+    raw: list[Any]
+    amplitudes: dict[tuple[str, str], Amplitudes]
+    force_scale: float
+
+
+def _nominal_context(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
+                     proc: Processing) -> tuple[_Nominal, list[np.ndarray]]:
+    outs = _Outputs(structure, train, proc, theta)
+    raw, base = [], []
     for k in range(len(outs.records)):
-        sim = outs._raw_cache[k]
-        d, dv = _relative(sim.q, sim.v, loc)
-        dmax, vmax = max(dmax, float(np.max(np.abs(d)))), max(vmax, float(np.max(np.abs(dv))))
-        d2 += float(np.sum(d ** 2))
-        v2 += float(np.sum(dv ** 2))
-        n += d.size
-    return Amplitudes(dmax, vmax, math.sqrt(d2 / max(n, 1)), math.sqrt(v2 / max(n, 1))), []
+        st, sim = outs.signals(theta, k)
+        if st is None:
+            raise ValueError("diagnose: the nominal fit diverges on a train record")
+        raw.append(sim)
+        base.append(outs.output(st, k))
+    amps = {}
+    for loc in _locations(structure):
+        ds, vs = zip(*(_relative(s.q, s.v, loc) for s in raw))
+        d, v = np.concatenate(ds), np.concatenate(vs)
+        amps[loc.between] = Amplitudes(float(np.max(np.abs(d))), float(np.max(np.abs(v))),
+                                       float(np.sqrt(np.mean(d ** 2))),
+                                       float(np.sqrt(np.mean(v ** 2))))
+    force_scale = float(max(np.sqrt(np.mean((structure.masses * s.a) ** 2)) for s in raw))
+    return _Nominal(theta, outs, raw, amps, force_scale), base
 
 
 def screen(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
            proc: Processing, effects: Sequence[Effect],
-           progress: Progress | None = None) -> tuple[list[Candidate], float]:
+           progress: Progress | None = None) -> tuple[list[Candidate], _Nominal]:
     """Score test of every candidate on the train records (see the module doc, step 3).
 
-    Returns the candidates (best first) and the nominal train cost.
+    Returns the candidates (admissible first, best score first; one per kind and location,
+    its best shape) and the nominal context.
     """
-    outs = _Outputs(structure, train, proc, theta)
+    nom, base_out = _nominal_context(structure, theta, train, proc)
+    outs, raw = nom.outs, nom.raw
     r = outs.residuals(theta)[0]
     cost0 = float(r @ r)
-    # nominal Jacobian (the nominal model re-tunes itself when an element is added)
+    # nominal Jacobian: projected out, since the nominal model re-tunes itself when an
+    # element is added and only what it cannot absorb counts for the candidate
     n = theta.size
     step = 1e-5 * np.where(theta != 0, np.abs(theta), 1.0)
     thetas = np.repeat(theta[None], n + 1, axis=0)
@@ -421,82 +496,182 @@ def screen(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
     U, s, _ = np.linalg.svd(Jn, full_matrices=False)
     U = U[:, s > 1e-8 * s.max()] if s.size and s.max() > 0 else U[:, :0]
     r_perp = r - U @ (U.T @ r)
-
-    # nominal simulation (raw, full rate) and processed outputs of each train record
-    base_out, raw = [], []
-    for k in range(len(outs.records)):
-        st, sim = outs.signals(theta, k)
-        if st is None:
-            raise ValueError("diagnose: the nominal fit diverges on a train record")
-        raw.append(sim)
-        base_out.append(outs.output(st, k))
-    outs._raw_cache = raw  # type: ignore[attr-defined]
     gains = _gain_values(structure, theta)
     masses = structure.masses
 
     cands: list[Candidate] = []
-    for loc in _locations(structure):
-        amp, _ = _amplitudes(outs, theta, loc)
-        for eff in effects:
-            if _has_element(structure, eff.kind, loc):
+    for eff, loc in candidate_sites(structure, effects):
+        amp = nom.amplitudes[loc.between]
+        for shape in eff.shape_grid(amp):
+            c = Candidate(eff, loc, dict(shape))
+            cands.append(c)
+            twin = _representable(structure, theta, raw, eff, loc, shape)
+            if twin:
+                c.admissible = False
+                c.note = f"the model's {twin} at this location already represents it"
                 continue
-            for shape in eff.shape_grid(amp):
-                cols = []
-                ok = True
-                for k, rr in enumerate(outs.records):
-                    sim = raw[k]
-                    d, dv = _relative(sim.q, sim.v, loc)
-                    g = eff.unit_force(d, dv, shape)
-                    # reference force: mass x acceleration of DOF i along the nominal run
-                    fref = float(np.sqrt(np.mean((masses[loc.i] * sim.a[:, loc.i]) ** 2)))
-                    grms = float(np.sqrt(np.mean(g ** 2)))
-                    if grms <= 0 or fref <= 0:
-                        cols.append(np.zeros(rr.target.size))
-                        continue
-                    eps = 1e-4 * fref / grms
-                    F = np.zeros((len(rr.rec), structure.n_dof)) if rr.force is None \
-                        else np.array(rr.force, dtype=float)
-                    F[:, loc.i] -= eps * g / (gains[loc.i] if gains[loc.i] != 0 else 1.0)
-                    if loc.j >= 0:
-                        F[:, loc.j] += eps * g / (gains[loc.j] if gains[loc.j] != 0 else 1.0)
-                    st, _ = outs.signals(theta, k, force=F)
-                    if st is None:
-                        ok = False
-                        break
-                    cols.append(((outs.output(st, k) - base_out[k]) / eps).ravel())
-                c = Candidate(eff, loc, dict(shape))
-                if not ok:
-                    c.admissible, c.note = False, "sensitivity run diverged"
-                    cands.append(c)
+            cols = []
+            for k, rr in enumerate(outs.records):
+                sim = raw[k]
+                d, dv = _relative(sim.q, sim.v, loc)
+                g = eff.unit_force(d, dv, shape)
+                # a small force relative to what moves DOF i along the nominal run
+                fref = float(np.sqrt(np.mean((masses[loc.i] * sim.a[:, loc.i]) ** 2)))
+                grms = float(np.sqrt(np.mean(g ** 2)))
+                if grms <= 0 or fref <= 0:
+                    cols.append(np.zeros(rr.target.size))
                     continue
-                j = np.concatenate(cols)
-                j_perp = j - U @ (U.T @ j)
-                jj = float(j_perp @ j_perp)
-                if jj <= 0 or cost0 <= 0:
-                    c.admissible = False
-                    cands.append(c)
-                    continue
-                jr = float(j_perp @ r_perp)
-                c.estimate = -jr / jj
-                c.score = (jr * jr / jj) / cost0
-                if eff.magnitude in eff.positive and c.estimate < 0:
-                    c.admissible = False
-                    c.note = "the data ask for a negative (energy-supplying) coefficient"
-                cands.append(c)
+                eps = 1e-4 * fref / grms
+                F = np.zeros((len(rr.rec), structure.n_dof)) if rr.force is None \
+                    else np.array(rr.force, dtype=float)
+                F[:, loc.i] -= eps * g / (gains[loc.i] if gains[loc.i] != 0 else 1.0)
+                if loc.j >= 0:
+                    F[:, loc.j] += eps * g / (gains[loc.j] if gains[loc.j] != 0 else 1.0)
+                st, _ = outs.signals(theta, k, force=F)
+                if st is None:
+                    break
+                cols.append(((outs.output(st, k) - base_out[k]) / eps).ravel())
+            if len(cols) < len(outs.records):
+                c.admissible, c.note = False, "sensitivity run diverged"
+                continue
+            j = np.concatenate(cols)
+            j_perp = j - U @ (U.T @ j)
+            jj = float(j_perp @ j_perp)
+            if jj <= 0 or cost0 <= 0:
+                c.admissible, c.note = False, "no effect on the output"
+                continue
+            jr = float(j_perp @ r_perp)
+            c.estimate = -jr / jj
+            c.score = (jr * jr / jj) / cost0
+            if eff.magnitude in eff.positive and c.estimate < 0:
+                c.admissible = False
+                c.note = "the data ask for a negative (energy-supplying) coefficient"
     cands.sort(key=lambda c: (c.admissible, c.score), reverse=True)
-    # one entry per (kind, location): the best shape
     seen: set[tuple[str, tuple[str, str]]] = set()
     unique = []
     for c in cands:
-        if c.key in seen:
-            continue
-        seen.add(c.key)
-        unique.append(c)
+        if c.key not in seen:
+            seen.add(c.key)
+            unique.append(c)
     _say(progress, "screening: " + ", ".join(f"{c.label()} {c.score:.3f}"
                                                for c in unique[:6] if c.admissible))
-    outs._amp = {tuple(l.between): _amplitudes(outs, theta, l)[0]  # type: ignore[attr-defined]
-                 for l in _locations(structure)}
-    return unique, cost0
+    return unique, nom
+
+
+def ee_screen(structure: Structure, nominal: NominalFit, train: Sequence[Recording],
+              cands: Sequence[Candidate]) -> None:
+    """Equation-error score of every candidate (in place): the same projection as the
+    output-error score test, on M a = -sum f + F over the processed train states, from the
+    nominal least-squares fit.  No simulation, so it is cheap and immune to the phase drift
+    that can trap an output-error fit when the effect is strong; but processed states are
+    biased by the chain, so on its own it ranks chain artefacts too (it only adds strong
+    candidates to the fitted set, see ``DiagnoseSettings.ee_strong``).
+    The joint Gauss-Newton solution (nominal parameters + magnitude) is kept as a fit start.
+    """
+    if nominal.ls_theta is None or nominal.ls_chain is None:
+        return
+    states = [nominal.ls_chain.apply(r, structure.dofs) for r in train]
+    q = np.concatenate([st.q for st in states])
+    v = np.concatenate([st.v for st in states])
+    a = np.concatenate([st.a for st in states])
+    f = np.concatenate([st.f for st in states])
+    th = np.asarray(nominal.ls_theta, float)
+    w = 1.0 / np.maximum(np.sqrt(np.mean(a ** 2, axis=0)), 1e-300)  # each DOF counts alike
+    acc0 = structure.accelerations(th, q, v, f)
+    r = ((a - acc0) * w).ravel()
+    n = th.size
+    cols = []
+    for p in range(n):
+        h = 1e-6 * (abs(th[p]) if th[p] != 0 else 1.0)
+        tp = th.copy()
+        tp[p] += h
+        cols.append(((structure.accelerations(tp, q, v, f) - acc0) * w).ravel() / h)
+    J = np.stack(cols, axis=1)
+    norms = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    U, sv, _ = np.linalg.svd(J / norms, full_matrices=False)
+    U = U[:, sv > 1e-8 * sv.max()] if sv.size and sv.max() > 0 else U[:, :0]
+    r_perp = r - U @ (U.T @ r)
+    rr = float(r @ r)
+    masses = structure.masses
+    for c in cands:
+        eff, loc = c.effect, c.loc
+        d, dv = _relative(q, v, loc)
+        amp = Amplitudes(float(np.max(np.abs(d))), float(np.max(np.abs(dv))),
+                         float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(dv ** 2))))
+        for shape in eff.shape_grid(amp):
+            g = eff.unit_force(d, dv, shape)
+            col = np.zeros_like(a)
+            col[:, loc.i] -= g / masses[loc.i]
+            if loc.j >= 0:
+                col[:, loc.j] += g / masses[loc.j]
+            j = (col * w).ravel()
+            j_perp = j - U @ (U.T @ j)
+            jj = float(j_perp @ j_perp)
+            if jj <= 0 or rr <= 0:
+                continue
+            jr = float(j_perp @ r_perp)
+            est = jr / jj
+            if eff.magnitude in eff.positive and est < 0:
+                continue
+            score = jr * jr / jj / rr
+            if score <= c.ee_score:
+                continue
+            A = np.column_stack([J / norms, j / np.linalg.norm(j)])
+            sol, *_ = np.linalg.lstsq(A, r, rcond=None)
+            delta = sol[:n] / norms
+            mag = float(sol[n] / np.linalg.norm(j))
+            if eff.magnitude in eff.positive and mag < 0:
+                continue
+            c.ee_score = score
+            c.ee_shape = dict(shape)
+            c.ee_start = (structure.as_dict(th + delta), {**shape, eff.magnitude: mag})
+
+
+#: R^2 above which a candidate's force is "already in the model" (see _representable)
+REDUNDANT_R2 = 0.99
+
+
+def _representable(structure: Structure, theta: np.ndarray, raw: Sequence[Any], eff: Effect,
+                   loc: Location, shape: Mapping[str, float]) -> str:
+    """Names of the model's elements at ``loc`` whose coefficient sensitivities span the
+    candidate's force along the nominal run (R^2 >= REDUNDANT_R2), else "".
+
+    Skipping what the model already has must also skip near-equivalents: a power-law
+    spring with beta ~ 2 *is* a cubic spring, and fitting one on top only wastes time (and
+    its linearised score can look high, since beta enters nonlinearly)."""
+    here = [el for el in structure.elements if {el.i, el.j} == {loc.i, loc.j}]
+    if not here:
+        return ""
+    values = structure.full_values(np.asarray(theta, float))
+    cols, g_all = [], []
+    for sim in raw:
+        d, dv = _relative(sim.q, sim.v, loc)
+        sign = 1.0 if not here or here[0].i == loc.i else -1.0
+        g_all.append(eff.unit_force(d, dv, dict(shape)))
+        rec_cols = []
+        for el in here:
+            s_el = 1.0 if el.i == loc.i else -1.0  # element orientation vs the candidate's
+            coeffs = {c: float(values[p]) for c, p in zip(el.kind.coefficients, el.params)}
+            for cname, p in zip(el.kind.coefficients, el.params):
+                if structure.parameters[p].fixed is not None:
+                    continue
+                h = 1e-6 * (abs(coeffs[cname]) or 1.0)
+                up = dict(coeffs, **{cname: coeffs[cname] + h})
+                f0 = np.asarray(el.kind.force(s_el * d, s_el * dv, **coeffs), float)
+                f1 = np.asarray(el.kind.force(s_el * d, s_el * dv, **up), float)
+                rec_cols.append(sign * s_el * (f1 - f0) / h)
+        cols.append(rec_cols)
+    if not cols or not cols[0]:
+        return ""
+    A = np.column_stack([np.concatenate([rc[k] for rc in cols]) for k in range(len(cols[0]))])
+    g = np.concatenate(g_all)
+    gg = float(g @ g)
+    if gg <= 0:
+        return ""
+    A = A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+    sol, *_ = np.linalg.lstsq(A, g, rcond=None)
+    r2 = 1.0 - float(np.sum((g - A @ sol) ** 2)) / gg
+    return ", ".join(sorted({el.kind.name for el in here})) if r2 >= REDUNDANT_R2 else ""
 
 
 def _pick(cands: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candidate]:
@@ -518,6 +693,9 @@ def _pick(cands: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candid
             if c.admissible and c.score > 0 and c.effect.kind not in per_kind:
                 chosen.append(c)
                 break
+    strong = max(cands, key=lambda c: c.ee_score, default=None)
+    if strong is not None and strong.ee_score >= settings.ee_strong and strong not in chosen:
+        chosen.append(strong)
     return chosen
 
 
@@ -525,34 +703,58 @@ def _pick(cands: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candid
 def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float) -> None:
-    """Fit nominal + candidate by output error on the train records (in place)."""
+    """Fit nominal + candidate by output error on the train records (in place).
+
+    Starts: the nominal fit with the new magnitude at a few multiples of the score test's
+    estimate (its best shape), and the joint equation-error solution when there is one;
+    each start is costed, the best is refined (growing horizons: a new element shifts the
+    phase late in long records, where the landscape has local minima)."""
     from .refine import output_error, refine
 
     t0 = time.perf_counter()
     eff = c.effect
     floor = eff.typical_magnitude(amp, c.shape, force_scale)
-    mags = eff.starts(c.estimate, floor)
-    scales = {**{k: max(abs(v), 1e-12) for k, v in c.shape.items()},
-              eff.magnitude: max(abs(c.estimate), floor * 1e-3, 1e-300)}
+    ref_mag = c.estimate if c.estimate != 0 else \
+        (c.ee_start[1][eff.magnitude] if c.ee_start else floor)
+    scales = {**{k: max(abs(v), 1e-12) for k, v in (c.shape or c.ee_shape).items()},
+              eff.magnitude: max(abs(ref_mag), floor * 1e-3, 1e-300)}
     aug, names = augmented(structure, eff, c.loc, scales)
-    nominal_values = structure.as_dict(theta_nom)
-    starts = []
-    for m in mags:
-        vals = dict(nominal_values)
-        vals.update({names[k]: v for k, v in c.shape.items()})
-        vals[names[eff.magnitude]] = m
-        starts.append(aug.vector(vals))
-    starts = np.stack(starts)
-    costs = output_error(aug, starts, list(train), proc)
-    th0 = starts[int(np.argmin(costs))]
-    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev, horizons=None)
-    both = output_error(aug, np.stack([th0, res.theta]), list(train), proc)
-    theta = res.theta if both[1] <= both[0] else th0
+    groups: list[np.ndarray] = []
+    if c.admissible and c.estimate != 0:
+        nominal_values = structure.as_dict(theta_nom)
+        batch = []
+        for m in eff.starts(c.estimate, floor):
+            vals = dict(nominal_values)
+            vals.update({names[k]: v for k, v in c.shape.items()})
+            vals[names[eff.magnitude]] = m
+            batch.append(aug.vector(vals))
+        groups.append(np.stack(batch))
+    if c.ee_start is not None:
+        nominal_ee, coeffs_ee = c.ee_start
+        th_ee = aug.vector({**nominal_ee, **{names[k]: v for k, v in coeffs_ee.items()}})
+        if _plausible(aug, th_ee, min(r.fs for r in train)):
+            groups.append(th_ee[None])
+    if not groups:
+        raise ValueError("no admissible start (negative magnitude for a signed effect)")
+    best_cost, th0 = math.inf, None
+    for batch in groups:  # separately: a batch takes the substeps of its stiffest set
+        try:
+            costs = output_error(aug, batch, list(train), proc)
+        except Exception:  # noqa: BLE001 - a start that cannot be simulated is skipped
+            continue
+        k = int(np.argmin(costs))
+        if costs[k] < best_cost:
+            best_cost, th0 = float(costs[k]), batch[k]
+    if th0 is None:
+        raise ValueError("every start diverges")
+    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev)
+    c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
+    theta, cost = (res.theta, c_ref) if c_ref <= best_cost else (th0, best_cost)
     c.structure, c.theta = aug, theta
     vals = aug.as_dict(theta)
     c.coefficients = {k: vals[p] for k, p in names.items()}
     c.parameters = {p: vals[p] for p in structure.free}
-    c.train_cost = float(min(both))
+    c.train_cost = cost
     c.fitted = True
     c.fit_time_s = time.perf_counter() - t0
 
@@ -622,7 +824,7 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
                                 for d, q in enumerate(ra.quantities)], -1) / ra.rms
         t = _kept_time(proc, r.rec, structure.dofs, len(y))
         fs = 1.0 / (t[1] - t[0]) if len(t) > 1 else 1.0
-        noise_nmse.append(_noise_nmse(y, fs))
+        noise_nmse.append(_noise_nmse(y, fs, _passband(proc, fs)))
         peak_force = float(np.max(np.abs(r.force))) if r.force is not None else 0.0
         entry: dict[str, Any] = {"record": r.rec.name, "role": role,
                                  "peak_force": peak_force,
@@ -678,6 +880,15 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
     return where, {"records": plots, "modes": modes}
 
 
+def _passband(proc: Processing, fs: float) -> tuple[float, float] | None:
+    """The band the chain lets through (band-pass, high-pass, anti-aliasing), if any."""
+    lo = max([x for x in (proc.bandpass[0] if proc.bandpass else None, proc.highpass)
+              if x is not None], default=0.0)
+    hi = min([x for x in (proc.bandpass[1] if proc.bandpass else None, 0.4 * fs)
+              if x is not None])
+    return (lo, hi) if hi > lo else None
+
+
 def _kept_time(proc: Processing, rec: Recording, dofs: Sequence[str], n: int) -> np.ndarray:
     i0 = proc.start_index(rec, dofs) + int(round(proc.trim * rec.fs))
     k = proc.decimation(rec.fs)
@@ -685,15 +896,21 @@ def _kept_time(proc: Processing, rec: Recording, dofs: Sequence[str], n: int) ->
     return t if len(t) == n else np.arange(n) * rec.dt * k + rec.time[0]
 
 
-def _noise_nmse(y: np.ndarray, fs: float) -> float:
+def _noise_nmse(y: np.ndarray, fs: float, band: tuple[float, float] | None) -> float:
     """White-noise floor of a normalised measured record as an NMSE: the median Welch PSD
-    over the band (a decaying response occupies few bins, noise all of them) times the
-    bandwidth, over the signal's variance.  Stationary lines (hum) are not counted."""
+    over the chain's passband (a decaying response occupies few bins, noise all of them)
+    times the passband width, over the signal's variance.  Stationary lines (hum) are not
+    counted; bins the chain filtered out would bias the median low, so they are excluded."""
     if len(y) < 32:
         return 0.0
     f, P = signal.welch(y, fs=fs, axis=0, nperseg=min(len(y), 1024))
+    lo, hi = band if band is not None else (0.0, fs / 2)
+    hi = min(hi, fs / 2)
+    m = (f > lo) & (f < hi)
+    if m.sum() < 4:
+        m = f > 0
     var = np.mean(y ** 2, axis=0)
-    floor = np.median(P[1:], axis=0) * (f[-1] - f[0])
+    floor = np.median(P[m], axis=0) * (hi - lo)
     return float(np.mean(floor / np.maximum(var, 1e-300)))
 
 
@@ -748,7 +965,8 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
     rule: dict[str, Any] = {"closure_min": settings.closure_min,
                             "separation": settings.separation,
                             "record_tolerance": settings.record_tolerance,
-                            "noise_factor": settings.noise_factor}
+                            "noise_factor": settings.noise_factor,
+                            "gap_min": settings.gap_min}
     fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure)]
     if not fitted:
         rule["reason"] = "no candidate could be fitted"
@@ -756,7 +974,8 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
     top = fitted[0]
     rival = next((c for c in fitted[1:] if c.effect.kind != top.effect.kind), None)
     checks = {
-        "above_noise": bool(noise_floor is None or gap_before > settings.noise_factor * noise_floor),
+        "above_noise": bool(gap_before > settings.gap_min and (
+            noise_floor is None or gap_before > settings.noise_factor * noise_floor)),
         "closure": bool(top.closure >= settings.closure_min),
         "separation": bool(rival is None or not np.isfinite(rival.gap_after)
                            or top.gap_after <= settings.separation * rival.gap_after),
@@ -770,7 +989,8 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
         rule["reason"] = "all checks pass"
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
-    reasons = {"above_noise": "the nominal model already fits to the noise level",
+    reasons = {"above_noise": "the nominal model already fits the validation records to "
+                              f"the noise level or within {settings.gap_min:g} NMSE",
                "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
                           "of the validation gap",
                "separation": "a candidate of another kind explains the gap about as well",
@@ -784,7 +1004,6 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
              processing: Any = "auto", *, settings: DiagnoseSettings | None = None,
              progress: Progress | None = None) -> Diagnosis:
     """Locate and explain the sim-to-real gap of ``structure`` (see the module doc)."""
-    from .refine import OutputErrorProblem
     from .siva import choose_processing
 
     settings = settings or DiagnoseSettings()
@@ -796,7 +1015,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     _say(progress, f"processing: {proc.describe() if hasattr(proc, 'describe') else proc}")
 
     t0 = time.perf_counter()
-    theta, train_cost, start = fit_nominal(structure, train, proc, settings, progress)
+    nominal_fit = fit_nominal(structure, train, proc, settings, progress)
+    theta, train_cost, start = nominal_fit.theta, nominal_fit.train_cost, nominal_fit.start
     timing["nominal_fit"] = time.perf_counter() - t0
     val_prob = _Outputs(structure, val, proc, theta)
     res_before = val_prob.residuals(theta)[0]
@@ -810,30 +1030,24 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown} (known: {', '.join(EFFECTS)})")
     t0 = time.perf_counter()
-    cands, _ = screen(structure, theta, train, proc, [EFFECTS[n] for n in names], progress)
+    cands, nom = screen(structure, theta, train, proc, [EFFECTS[n] for n in names], progress)
+    ee_screen(structure, nominal_fit, train, cands)
+    strong = sorted(cands, key=lambda c: -c.ee_score)[:3]
+    _say(progress, "equation-error screening: " + ", ".join(
+        f"{c.label()} {c.ee_score:.3f}" for c in strong))
     timing["screening"] = time.perf_counter() - t0
-
-    # amplitudes per location and a force scale for magnitude floors
-    tr_outs = _Outputs(structure, train, proc, theta)
-    raws = [tr_outs.signals(theta, k)[1] for k in range(len(tr_outs.records))]
-    tr_outs._raw_cache = raws  # type: ignore[attr-defined]
-    force_scale = float(np.max([np.sqrt(np.mean((structure.masses * s.a) ** 2)) for s in raws]))
 
     t0 = time.perf_counter()
     chosen = _pick(cands, settings)
     for c in chosen:
-        amp, _ = _amplitudes(tr_outs, theta, c.loc)
         try:
-            fit_candidate(c, structure, theta, train, proc, amp, settings, force_scale)
+            fit_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
+                          settings, nom.force_scale)
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")
             continue
-        prob = OutputErrorProblem.build(c.structure, list(val), proc,
-                                        theta_ref=c.theta[None])
-        outs = _Outputs.__new__(_Outputs)
-        outs.structure, outs.proc, outs.prob, outs.n_groups = c.structure, proc, prob, \
-            prob.n_groups
+        outs = _Outputs(c.structure, val, proc, c.theta)
         r_after = outs.residuals(c.theta)[0]
         c.gap_before = gap_before
         c.gap_after = float(r_after @ r_after) if np.all(np.isfinite(r_after)) else math.inf
@@ -857,6 +1071,12 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     best = ranking[0] if ranking else None
     where, plots = where_analysis(structure, theta, [*train, *val],
                                   ["train"] * len(train) + ["val"] * len(val), proc, best)
+    # noise floor: the spectral estimate, capped by the best fit achieved on the train
+    # records (a residual that small is reachable, so the noise cannot be larger)
+    psd_floor = where.pop("noise_floor")
+    fits = [train_cost] + [c.train_cost for c in ranking if np.isfinite(c.train_cost)]
+    where["noise_floor"] = float(min([psd_floor, *fits] if psd_floor is not None else fits))
+    where["noise_floor_spectral"] = psd_floor
     verdict, rule = decide(ranking, gap_before, where["noise_floor"], settings)
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
@@ -872,6 +1092,48 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                      theta, list(train), list(val))
     diag._plots = plots  # type: ignore[attr-defined]
     return diag
+
+
+# ============================================================================ synthetic cases
+def with_effect(structure: Structure, kind: str, between: Sequence[str],
+                coefficients: Mapping[str, float]) -> Structure:
+    """``structure`` plus one element with *known* coefficients (fixed parameters), so the
+    free parameters stay those of ``structure``: the generator of a synthetic gap case."""
+    spec = copy.deepcopy(structure.spec)
+    spec["elements"].append({"kind": kind, "between": list(between),
+                             "params": {c: float(v) for c, v in coefficients.items()}})
+    return Structure.from_dict(spec)
+
+
+def synthetic_impacts(structure: Structure, theta: Any, peaks: Sequence[float], *,
+                      dof: str, fs: float = 2048.0, duration: float = 4.0,
+                      pulse: float = 6.2e-3, t_hit: float = 0.1, acc_noise: float = 3e-3,
+                      force_noise: float = 2e-3, seed: int = 0) -> list[Recording]:
+    """Impact-hammer records of ``structure`` as instruments give them (acc per DOF and the
+    force, no displacement): half-sine pulses of the given peaks on ``dof``, white noise of
+    ``acc_noise`` x each acceleration's peak and ``force_noise`` x the force peak.
+
+    Used by the tests and the benchmark to check the diagnosis on effects, magnitudes and
+    seeds other than the shipped examples (``with_effect`` builds the generator)."""
+    from .simulate import simulate
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(duration * fs))) / fs
+    k = structure.dofs.index(dof)
+    out = []
+    for peak in peaks:
+        F = np.zeros((len(t), structure.n_dof))
+        on = (t >= t_hit) & (t <= t_hit + pulse)
+        F[on, k] = peak * np.sin(np.pi * (t[on] - t_hit) / pulse)
+        sim = simulate(structure, np.asarray(theta, float), t, np.zeros(structure.n_dof),
+                       np.zeros(structure.n_dof), F, substeps="auto")
+        cols: dict[str, np.ndarray] = {"time": t}
+        for d, name in enumerate(structure.dofs):
+            a = sim.a[:, d]
+            cols[f"acc_{name}"] = a + acc_noise * np.max(np.abs(a)) * rng.standard_normal(len(t))
+        cols[f"force_{dof}"] = F[:, k] + force_noise * peak * rng.standard_normal(len(t))
+        out.append(Recording.from_columns(cols, structure.dofs, name=f"impact_{peak:g}N"))
+    return out
 
 
 # ============================================================================ command
@@ -1009,4 +1271,4 @@ noise floor {(where['noise_floor'] or float('nan')):.3g}); processing: {esc(data
 
 
 __all__ = ["diagnose", "diagnose_command", "Diagnosis", "DiagnoseSettings", "Candidate",
-           "augmented", "decide", "html_report"]
+           "augmented", "decide", "html_report", "with_effect", "synthetic_impacts"]

@@ -222,11 +222,23 @@ class Siva:
         # --- best: output-error refinement from Approach III
         best, best_std = theta_III.copy(), None
         t0 = time.perf_counter()
+        self.refine_ = None
         if self.refine:
-            res = refine(st, theta_III, train, proc)
+            # An impact's response scales with its impulse: with a force sensor and no
+            # identified gain, one force multiplier per record is fitted as a nuisance
+            # parameter so that sensor error is not absorbed by the structure's parameters.
+            gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
+            forced = all(r.has_force(st.dofs) for r in train)
+            res = refine(st, theta_III, train, proc, fit_force_scale=forced and not gains)
+            self.refine_ = res
             c_ref = output_error(st, np.stack([theta_III, res.theta]), train, proc)
             if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
-                best, best_std = res.theta, res.std
+                # Gauss-Newton std, inflated for the correlation of filtered residuals
+                best, best_std = res.theta, res.std * max(1.0, float(res.ci_inflation))
+                if res.force_scale is not None:
+                    notes.append("best: fitted force scale per training record "
+                                 + ", ".join(f"{r.name}={f:.4f}"
+                                             for r, f in zip(train, np.ravel(res.force_scale))))
             else:
                 notes.append(f"refinement did not improve on Approach III ({res.message})")
         timing["refine"] = time.perf_counter() - t0

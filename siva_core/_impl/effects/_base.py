@@ -18,7 +18,7 @@ ground).  What the diagnosis needs to know about it lives here, next to the phys
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
