@@ -33,6 +33,7 @@ from siva_core import Recording, Siva, Structure  # noqa: E402
 from siva_core._impl import baselines  # noqa: E402
 from siva_core._impl.refine import displacement_mse  # noqa: E402
 from siva_core._impl.simulate import warmup  # noqa: E402
+from _common import data_dir  # noqa: E402
 
 #: the paper's Table 1 displacement MSE [mm^2] on the training record
 PAPER_MSE = {"sindy": 9.236e-3, "eddi": 1.241e-2, "approach_I": 0.2835,
@@ -44,13 +45,6 @@ LABEL = {"approach_I": "SIVA I", "approach_II": "SIVA II", "approach_III": "SIVA
          "best": "SIVA best", "sindy": "SINDy", "least_squares": "least squares"}
 
 
-def data_dir() -> Path:
-    """../shared/data from the project root, or $SIVA_SHARED_DATA."""
-    env = os.environ.get("SIVA_SHARED_DATA")
-    for cand in ([Path(env)] if env else []) + [ROOT.parent / "shared" / "data"]:
-        if (cand / "duffing").is_dir():
-            return cand
-    raise SystemExit("shared data not found (set SIVA_SHARED_DATA)")
 
 
 def _paper(m: str) -> str:

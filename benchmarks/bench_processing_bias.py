@@ -30,18 +30,9 @@ sys.path.insert(0, str(ROOT))
 
 from siva_core import Processing, Recording, Structure  # noqa: E402
 from siva_core._impl.baselines import least_squares  # noqa: E402
+from _common import data_dir  # noqa: E402
 
 
-def data_dir() -> Path:
-    """../shared/data from the project root (the README's convention), or $SIVA_SHARED_DATA."""
-    import os
-
-    env = os.environ.get("SIVA_SHARED_DATA")
-    for cand in ([Path(env)] if env else []) + [ROOT.parent / "shared" / "data",
-                                                 Path("/work/shared/data")]:
-        if (cand / "lono").is_dir():
-            return cand
-    raise SystemExit("shared data not found (set SIVA_SHARED_DATA)")
 
 
 def with_channels(rec: Recording, keep: tuple[str, ...], extra: dict[str, np.ndarray],

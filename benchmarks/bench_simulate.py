@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from siva_core import Recording, Structure  # noqa: E402
 from siva_core._impl.simulate import gate_force, simulate, warmup  # noqa: E402
+from _common import data_dir  # noqa: E402
 
 DUFFING_LIMIT_S = 2.0
 LONO_LIMIT_S = 0.5
@@ -46,13 +47,6 @@ ERR_LIMIT = 1e-6
 N_REF = 5
 
 
-def data_dir() -> Path:
-    """../shared/data from the project root, or $SIVA_SHARED_DATA."""
-    env = os.environ.get("SIVA_SHARED_DATA")
-    for cand in ([Path(env)] if env else []) + [ROOT.parent / "shared" / "data"]:
-        if (cand / "duffing").is_dir():
-            return cand
-    raise SystemExit("shared data not found (set SIVA_SHARED_DATA)")
 
 
 def best_time(fn: Callable[[], object], repeat: int) -> tuple[float, float, object]:

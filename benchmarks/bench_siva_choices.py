@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -39,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from siva_core import Recording, SivaSettings, SivaTrainer, Structure  # noqa: E402
 from siva_core._impl.siva import choose_processing  # noqa: E402
+from _common import data_dir  # noqa: E402
 
 SYSTEMS = {
     "duffing": ("duffing.toml", "duffing", ["train_v5.csv"], ["val_v3.csv", "val_v8.csv"]),
@@ -55,13 +55,6 @@ VARIANTS: list[tuple[str, str, dict[str, Any]]] = [
 ]
 
 
-def data_dir() -> Path:
-    """../shared/data from the project root, or $SIVA_SHARED_DATA."""
-    env = os.environ.get("SIVA_SHARED_DATA")
-    for cand in ([Path(env)] if env else []) + [ROOT.parent / "shared" / "data"]:
-        if (cand / "duffing").is_dir():
-            return cand
-    raise SystemExit("shared data not found (set SIVA_SHARED_DATA)")
 
 
 @dataclass

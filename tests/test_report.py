@@ -8,33 +8,15 @@ import numpy as np
 import pytest
 
 from siva_core import Recording, Siva, Structure
+from synthetic import SDOF, TRUE, free_decay
 from siva_core._impl.report import write_report
 from siva_core._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-SDOF = {"name": "sdof", "dofs": ["x"], "mass": {"x": 2.0}, "elements": [
-    {"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}},
-    {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c"}}]}
-TRUE = {"k": 5.0e4, "c": 12.0}
-
-
-def _decay(v0: float, n: int = 1500, fs: float = 1000.0) -> Recording:
-    """Exact free decay of the linear oscillator, with disp, vel and acc columns."""
-    m, k, c = 2.0, TRUE["k"], TRUE["c"]
-    wn, zeta = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
-    wd = wn * np.sqrt(1 - zeta ** 2)
-    t = np.arange(n) / fs
-    env = np.exp(-zeta * wn * t)
-    q = v0 / wd * env * np.sin(wd * t)
-    v = v0 * env * (np.cos(wd * t) - zeta * wn / wd * np.sin(wd * t))
-    a = -(k * q + c * v) / m
-    return Recording(t, {"disp_x": q, "vel_x": v, "acc_x": a}, f"decay_v{v0:g}.csv")
-
-
 @pytest.fixture(scope="module")
 def fitted() -> tuple[Siva, list[Recording], list[Recording]]:
     st = Structure.from_dict(SDOF)
-    train, val = [_decay(1.0)], [_decay(0.5), _decay(2.0)]
+    train, val = [free_decay(1.0)], [free_decay(0.5), free_decay(2.0)]
     est = Siva(st, processing="none", max_epochs=12, n_samples=64, n_candidates=12,
                baselines=False, progress=None).fit(train, val)
     return est, train, val

@@ -8,34 +8,22 @@ import pytest
 import torch
 
 from siva_core import Processing, Recording, SivaSettings, SivaTrainer, States, Structure
+from synthetic import SDOF, TRUE, free_decay
 from siva_core._impl.convergence import ConvergenceMonitor
 from siva_core._impl.ensemble import Ensemble, effective_sample_size, normal_summary
 from siva_core._impl.networks import LN4, Discriminator, ParameterGenerator
 
 ROOT = Path(__file__).resolve().parents[1]
-SPRING_DAMPER = {"name": "sdof", "dofs": ["x"], "mass": {"x": 2.0}, "elements": [
-    {"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}},
-    {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c"}}]}
-TRUE = {"k": 5.0e4, "c": 12.0}
 
 
 def _free_decay(v0: float, n: int = 4000, fs: float = 2000.0) -> States:
-    """Exact free decay of the linear oscillator (closed form), as processed States."""
-    m, k, c = 2.0, TRUE["k"], TRUE["c"]
-    wn, zeta = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
-    wd = wn * np.sqrt(1 - zeta**2)
-    t = np.arange(n) / fs
-    q = v0 / wd * np.exp(-zeta * wn * t) * np.sin(wd * t)
-    v = np.gradient(q, t)
-    v = v0 * np.exp(-zeta * wn * t) * (np.cos(wd * t) - zeta * wn / wd * np.sin(wd * t))
-    a = -(k * q + c * v) / m
-    col = lambda x: x[:, None]
-    return States(t, col(q), col(v), col(a), np.zeros((n, 1)), name=f"v{v0}")
+    """The exact decay as processed States (nothing to derive: all three are given)."""
+    return Processing().apply(free_decay(v0, n, fs), ["x"])
 
 
 @pytest.fixture(scope="module")
 def sdof() -> Structure:
-    return Structure.from_dict(SPRING_DAMPER)
+    return Structure.from_dict(SDOF)
 
 
 def test_generator_scientific_notation_starts_at_reference():
@@ -115,7 +103,7 @@ def test_trainer_identifies_linear_oscillator_and_is_deterministic(sdof):
     assert mean[0] == pytest.approx(TRUE["k"], rel=0.01)
     assert mean[1] == pytest.approx(TRUE["c"], rel=0.05)
     scores = tr.discriminator_scores()
-    assert set(scores["records"]) == {"v0.4", "v2.0"}
+    assert set(scores["records"]) == {"decay_v0.4.csv", "decay_v2.csv"}
     assert scores["ln4_distance"] < 0.05 and scores["ln4"] == pytest.approx(LN4)
     # same seed, same data -> the same trajectory, bit for bit
     again = run()
