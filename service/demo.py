@@ -207,8 +207,9 @@ class DemoStreamer(threading.Thread):
                     raise RuntimeError(f"demo: server at {self.base_url} not up after "
                                        f"{cfg.wait_server_s:g} s")
                 client.register(cfg.system, LONO_SPEC)
-                log.info("demo: streaming LO-NO impacts into system %r (seed %d)",
-                         cfg.system, cfg.seed)
+                log.info("demo: streaming LO-NO impacts into system %r (seed %d); k1 drops "
+                         "after record %d. Watch %s/v1/systems/%s/estimate and .../drift",
+                         cfg.system, cfg.seed, cfg.drop_after, self.base_url, cfg.system)
                 structure = lono_structure()
                 last_epoch = -10**9
                 i = 0
