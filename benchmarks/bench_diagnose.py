@@ -7,6 +7,9 @@ Cases (the model is always the nominal LO-NO, examples/models/lono.toml):
   print the expected answer next to the verdict.
 * ``null_lono``: the lono/ impact records, whose generator is exactly the nominal model:
   train 530 N, validate 37 + 899 N; the expected verdict is null.
+* ``duffing_without_cubic_damper``: another model: the paper's Duffing (duffing/, free
+  decays, noise-free disp/vel/acc, no force) diagnosed with the model *minus* its cubic
+  damper; train 5 m/s, validate 3 + 8 m/s.
 * ``syn_*``: synthetic records never shipped (another effect, location, magnitude, seed):
   the nominal truth (lono/truth.json) plus one element, simulated with the project's own
   simulator, 4 s at 2048 Hz, 0.3 % acceleration / 0.2 % force noise; train 150 + 450 N,
@@ -39,12 +42,25 @@ SYNTHETIC = {
     "syn_clearance_LO_ground": ("clearance", ("LO", "ground"), {"k": 2.0e4, "gap": 2.0e-3}),
     "syn_cubic_spring_NO_ground": ("cubic_spring", ("NO", "ground"), {"k3": -3.0e6}),
 }
-CASES = ["coulomb_NO_ground", "cubic_damper_LO_NO", "null_lono", *SYNTHETIC]
+CASES = ["coulomb_NO_ground", "cubic_damper_LO_NO", "null_lono", *SYNTHETIC,
+         "duffing_without_cubic_damper"]
+
+
+def duffing_without_cubic_damper() -> Structure:
+    """The Duffing model of examples/models with its cubic damper (b_nl) withheld."""
+    spec = Structure.from_file(ROOT / "examples" / "models" / "duffing.toml").spec
+    spec["elements"] = [e for e in spec["elements"] if e["kind"] != "cubic_damper"]
+    return Structure.from_dict(spec)
 
 
 def load_case(name: str, structure: Structure) -> tuple[list[Recording], list[Recording], Any]:
     """(train, val, expected verdict as (kind, between) or None)."""
     dofs = structure.dofs
+    if name == "duffing_without_cubic_damper":
+        folder = DATA / "duffing"
+        train = [Recording.read(folder / "train_v5.csv", dofs)]
+        val = [Recording.read(folder / f, dofs) for f in ("val_v3.csv", "val_v8.csv")]
+        return train, val, ("cubic_damper", ("x", "ground"))
     if name in ("coulomb_NO_ground", "cubic_damper_LO_NO"):
         folder = DATA / "gap_examples" / name
         train = [Recording.read(folder / f"impact_{a}N.csv", dofs) for a in (250, 530)]
@@ -66,7 +82,8 @@ def load_case(name: str, structure: Structure) -> tuple[list[Recording], list[Re
 
 
 def run(name: str, quiet: bool = True) -> dict[str, Any]:
-    structure = Structure.from_file(MODEL)
+    structure = duffing_without_cubic_damper() if name.startswith("duffing") \
+        else Structure.from_file(MODEL)
     train, val, expected = load_case(name, structure)
     t0 = time.perf_counter()
     with warnings.catch_warnings():

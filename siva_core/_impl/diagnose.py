@@ -169,6 +169,7 @@ class Diagnosis:
     theta_nominal: np.ndarray
     train: list[Recording]
     val: list[Recording]
+    plots: dict[str, Any] = field(default_factory=dict, repr=False)  # HTML report data
 
     def to_json(self) -> dict[str, Any]:
         v = None
@@ -232,9 +233,6 @@ class _Outputs:
     def residuals(self, thetas: np.ndarray) -> np.ndarray:
         return self.prob.residuals(np.atleast_2d(thetas))
 
-    def cost(self, thetas: np.ndarray) -> np.ndarray:
-        return self.prob.cost(np.atleast_2d(thetas))
-
     def blocks(self, res: np.ndarray) -> np.ndarray:
         """(n_records, n_dof) NMSE per record and DOF from one residual vector."""
         out = np.empty((len(self.records), self.structure.n_dof))
@@ -246,20 +244,28 @@ class _Outputs:
             col += size
         return out
 
-    def signals(self, theta: np.ndarray, k: int, force: np.ndarray | None = None,
-                raw: bool = False) -> tuple[States | None, Any]:
-        """Record ``k`` simulated at one theta (optionally with another force), processed.
-        Returns (processed states or None if diverged, raw Simulation)."""
+    def signals(self, theta: np.ndarray, k: int, force: np.ndarray | None = None
+                ) -> tuple[States | None, Any]:
+        """Record ``k`` simulated at one theta (optionally driven by another force) and
+        processed the way ``refine`` does it (same interpolation, chain and substeps).
+        Returns (processed states or None if diverged, the raw full-rate Simulation)."""
         from .simulate import simulate, simulated_recording
 
         r = self.records[k]
         f = r.force if force is None else force
+        kw: dict[str, Any] = {}
+        if hasattr(self.prob, "interp"):
+            kw["interp"] = self.prob.interp
         sim = simulate(self.structure, np.asarray(theta, float), r.rec.time, r.q0, r.v0, f,
-                       substeps=r.substeps, backend=self.prob.backend)
-        if not (np.all(np.isfinite(sim.q)) and np.all(np.isfinite(sim.v))):
+                       substeps=r.substeps, backend=self.prob.backend, **kw)
+        if not (np.all(np.isfinite(sim.q)) and np.all(np.isfinite(sim.v))
+                and np.all(np.isfinite(sim.a))):
             return None, sim
+        chain = getattr(self.prob, "chain", self.proc)
+        if hasattr(chain, "apply_simulated"):
+            return chain.apply_simulated(r.rec, self.structure.dofs, sim.q, sim.v, sim.a), sim
         srec = simulated_recording(r.rec, self.structure, sim.q, sim.v, sim.a)
-        return self.proc.apply(srec, self.structure.dofs), sim
+        return chain.apply(srec, self.structure.dofs), sim
 
     def output(self, st: States, k: int) -> np.ndarray:
         """Normalised compared quantities (T', n_dof) of processed simulated states."""
@@ -1088,10 +1094,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                "gap": gap_before, "start": start,
                "gap_per_record": {rec.name: float(before_blocks[k].mean())
                                   for k, rec in enumerate(val)}}
-    diag = Diagnosis(verdict, ranking, cands, where, nominal, rule, proc, timing, structure,
-                     theta, list(train), list(val))
-    diag._plots = plots  # type: ignore[attr-defined]
-    return diag
+    return Diagnosis(verdict, ranking, cands, where, nominal, rule, proc, timing, structure,
+                     theta, list(train), list(val), plots)
 
 
 # ============================================================================ synthetic cases
@@ -1180,7 +1184,7 @@ def html_report(diag: Diagnosis) -> str:
     import matplotlib.pyplot as plt
 
     data = diag.to_json()
-    plots = getattr(diag, "_plots", {"records": []})
+    plots = diag.plots or {"records": []}
     recs = [p for p in plots["records"] if p["role"] == "val"] or plots["records"]
     figs: list[tuple[str, str]] = []
     if recs:
