@@ -291,3 +291,28 @@ def test_bad_inputs_are_refused(duffing_model: Structure) -> None:
         simulate(duffing_model, DUFFING_TRUTH, t, [0.0], [1.0], np.zeros((99, 1)))
     with pytest.raises(ValueError, match="backend"):
         simulate(duffing_model, DUFFING_TRUTH, t, [0.0], [1.0], backend="cuda")
+
+
+def test_large_model_compiles_and_matches_numpy():
+    """A 6-DOF chain with 18 parameters: the kernel has no per-call argument limit."""
+    dofs = [f"m{i}" for i in range(6)]
+    elements = []
+    for i, a in enumerate(dofs):
+        b = "ground" if i == 0 else dofs[i - 1]
+        elements += [{"kind": "spring", "between": [a, b], "params": {"k": f"k{i}"}},
+                     {"kind": "damper", "between": [a, b], "params": {"c": f"c{i}"}},
+                     {"kind": "cubic_spring", "between": [a, b], "params": {"k3": f"g{i}"}}]
+    st = Structure.from_dict({"name": "chain6", "dofs": dofs, "mass": {d: 1.0 for d in dofs},
+                              "elements": elements})
+    theta = np.array([{"k": 1e4, "c": 5.0, "g": 1e6}[p[0]] for p in st.free])
+    t = np.arange(1500) / 1000.0
+    force = np.zeros((len(t), 6))
+    force[5:10, -1] = 100.0
+    fast = simulate(st, np.stack([theta, 1.1 * theta]), t, np.zeros(6), np.zeros(6), force,
+                    substeps=4, backend="numba")
+    slow = simulate(st, np.stack([theta, 1.1 * theta]), t, np.zeros(6), np.zeros(6), force,
+                    substeps=4, backend="numpy")
+    assert fast.backend == "numba"
+    scale = np.abs(slow.q).max()
+    assert scale > 1e-4
+    assert np.abs(fast.q - slow.q).max() < 1e-9 * scale + 1e-12

@@ -500,41 +500,32 @@ def _kernel_source(structure: Any) -> str:
     n = structure.n_dof
     pnames = list(structure.parameters)
     slot = {p: k for k, p in enumerate(pnames)}
-    qs = [f"q_{k}" for k in range(n)]
-    vs = [f"v_{k}" for k in range(n)]
-    us = [f"u_{k}" for k in range(n)]
-    ims = [f"im_{k}" for k in range(n)]
-    ps = [f"p_{k}" for k in range(len(pnames))]
-    body = []
-    terms: list[list[str]] = [[] for _ in range(n)]
+    codes: list[str] = []
     for e, el in enumerate(structure.elements):
         names = {"d": f"d_{e}", "dv": f"dv_{e}"}
         names.update({c: f"p_{slot[p]}" for c, p in zip(el.kind.coefficients, el.params)})
-        if el.j >= 0:
-            body.append(f"d_{e} = q_{el.i} - q_{el.j}")
-            body.append(f"dv_{e} = v_{el.i} - v_{el.j}")
-            terms[el.j].append(f"+ f_{e}")
-        else:
-            body.append(f"d_{e} = q_{el.i}")
-            body.append(f"dv_{e} = v_{el.i}")
-        terms[el.i].append(f"- f_{e}")
         try:
-            code = _translate(el.kind.expr, names)
+            codes.append(_translate(el.kind.expr, names))
         except _NotCompilable as exc:
             raise _NotCompilable(f"element kind {el.kind.name!r}: {exc}") from None
-        body.append(f"f_{e} = {code}  # {el.kind.name}")
-    for k in range(n):
-        body.append(f"a_{k} = (u_{k} {' '.join(terms[k])}) * im_{k}")
-    acc_args = ", ".join(qs + vs + us + ps + ims)
-    ret = ", ".join(f"a_{k}" for k in range(n)) + ","
 
-    def call(qn: str, vn: str, un: str) -> str:
-        a = ([f"{qn}{k}" for k in range(n)] + [f"{vn}{k}" for k in range(n)]
-             + [f"{un}{k}" for k in range(n)] + ps + ims)
-        return f"_acc({', '.join(a)})"
-
-    def tup(prefix: str) -> str:
-        return ", ".join(f"{prefix}{k}" for k in range(n)) + ","
+    def acc_block(qn: str, vn: str, un: str, out: str) -> list[str]:
+        """The model's accelerations as straight-line code, written out at each RK4 stage
+        (a helper function would need 3n + n_params + n arguments; numba refuses ~24+)."""
+        lines: list[str] = []
+        terms: list[list[str]] = [[] for _ in range(n)]
+        for e, el in enumerate(structure.elements):
+            if el.j >= 0:
+                lines.append(f"d_{e} = {qn}{el.i} - {qn}{el.j}")
+                lines.append(f"dv_{e} = {vn}{el.i} - {vn}{el.j}")
+                terms[el.j].append(f"+ f_{e}")
+            else:
+                lines.append(f"d_{e} = {qn}{el.i}")
+                lines.append(f"dv_{e} = {vn}{el.i}")
+            terms[el.i].append(f"- f_{e}")
+            lines.append(f"f_{e} = {codes[e]}  # {el.kind.name}")
+        lines += [f"{out}{k} = ({un}{k} {' '.join(terms[k])}) * im_{k}" for k in range(n)]
+        return lines
 
     K: list[str] = []
     ind = " " * 8
@@ -547,7 +538,7 @@ def _kernel_source(structure: Any) -> str:
     i2, i3, i4 = ind + " " * 4, ind + " " * 8, ind + " " * 12
     K += [f"{i2}base = i * m2"]
     K += [f"{i2}u_{k} = g_{k} * F[base, {k}]" for k in range(n)]
-    K += [f"{i2}{tup('a_')} = {call('q_', 'v_', 'u_')}"]
+    K += [i2 + line for line in acc_block("q_", "v_", "u_", "a_")]
     for k in range(n):
         K += [f"{i2}Q[b, i, {k}] = q_{k}", f"{i2}V[b, i, {k}] = v_{k}", f"{i2}A[b, i, {k}] = a_{k}"]
     ok = " and ".join([f"abs(q_{k}) < {_BLOWUP!r} and abs(v_{k}) < {_BLOWUP!r}" for k in range(n)])
@@ -567,16 +558,16 @@ def _kernel_source(structure: Any) -> str:
     K += [f"{i3}ub_{k} = g_{k} * F[j + 2, {k}]" for k in range(n)]
     K += [f"{i3}if s == 0:"]
     K += [f"{i4}k1_{k} = a_{k}" for k in range(n)]
-    K += [f"{i3}else:", f"{i4}{tup('k1_')} = {call('q_', 'v_', 'ua_')}"]
+    K += [f"{i3}else:"] + [i4 + line for line in acc_block("q_", "v_", "ua_", "k1_")]
     K += [f"{i3}q2_{k} = q_{k} + hh * v_{k}" for k in range(n)]
     K += [f"{i3}v2_{k} = v_{k} + hh * k1_{k}" for k in range(n)]
-    K += [f"{i3}{tup('k2_')} = {call('q2_', 'v2_', 'um_')}"]
+    K += [i3 + line for line in acc_block("q2_", "v2_", "um_", "k2_")]
     K += [f"{i3}q3_{k} = q_{k} + hh * v2_{k}" for k in range(n)]
     K += [f"{i3}v3_{k} = v_{k} + hh * k2_{k}" for k in range(n)]
-    K += [f"{i3}{tup('k3_')} = {call('q3_', 'v3_', 'um_')}"]
+    K += [i3 + line for line in acc_block("q3_", "v3_", "um_", "k3_")]
     K += [f"{i3}q4_{k} = q_{k} + h * v3_{k}" for k in range(n)]
     K += [f"{i3}v4_{k} = v_{k} + h * k3_{k}" for k in range(n)]
-    K += [f"{i3}{tup('k4_')} = {call('q4_', 'v4_', 'ub_')}"]
+    K += [i3 + line for line in acc_block("q4_", "v4_", "ub_", "k4_")]
     K += [f"{i3}q_{k} = q_{k} + h6 * (v_{k} + 2.0 * v2_{k} + 2.0 * v3_{k} + v4_{k})"
           for k in range(n)]
     K += [f"{i3}v_{k} = v_{k} + h6 * (k1_{k} + 2.0 * k2_{k} + 2.0 * k3_{k} + k4_{k})"
@@ -587,13 +578,6 @@ def _kernel_source(structure: Any) -> str:
         "import math",
         "import numpy as np",
         "import numba as nb",
-        "",
-        "",
-        "@nb.njit(cache=CACHE, inline='always', error_model='numpy',",
-        f"         fastmath={_fastmath_literal()})",
-        f"def _acc({acc_args}):",
-        *("    " + line for line in body),
-        f"    return ({ret})",
         "",
         "",
         "@nb.njit(parallel=True, cache=CACHE, nogil=True, error_model='numpy',",
