@@ -11,9 +11,10 @@ SDOF = {"name": "sdof", "dofs": ["x"], "mass": {"x": 2.0}, "elements": [
 TRUE = {"k": 5.0e4, "c": 12.0}
 
 
-def free_decay(v0: float, n: int = 1500, fs: float = 1000.0) -> Recording:
-    """Exact free decay of SDOF from x = 0, x' = v0, with disp, vel and acc columns."""
-    m, k, c = 2.0, TRUE["k"], TRUE["c"]
+def free_decay(v0: float, n: int = 1500, fs: float = 1000.0, *, m: float = 2.0,
+               k: float = TRUE["k"], c: float = TRUE["c"]) -> Recording:
+    """Exact free decay of a linear oscillator (SDOF by default) from x = 0, x' = v0,
+    with disp, vel and acc columns."""
     wn, zeta = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
     wd = wn * np.sqrt(1 - zeta ** 2)
     t = np.arange(n) / fs

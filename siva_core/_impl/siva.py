@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .ensemble import normal_summary
-from .processing import Processing, States
+from .processing import Processing
 from .recording import Recording
 from .structure import Structure
 from .training import SivaSettings, SivaTrainer

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -304,7 +304,6 @@ class SivaTrainer:
         pool = self.val if self.val is not None else self.train
         if pool is None:
             return {}
-        theta = torch.from_numpy(self.sample(1, seed=self.settings.seed + 1)[0])
         # the generator's central estimate: mean over a fixed noise batch
         theta = torch.from_numpy(self.sample(256, seed=self.settings.seed + 1).mean(0))
         records: dict[str, dict[str, float]] = {}

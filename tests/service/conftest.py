@@ -7,7 +7,6 @@ for the catch-all handler's "unhandled error" line.
 """
 from __future__ import annotations
 
-import math
 import os
 import signal
 import socket
@@ -19,8 +18,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import httpx
-import numpy as np
 import pytest
+from synthetic import free_decay
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -59,17 +58,7 @@ def duffing_file(name: str) -> bytes:
 def oscillator_csv(k: float = 300.0, c: float = 0.5, m: float = 0.05, v0: float = 1.0,
                    n: int = 2000, fs: float = 2000.0) -> bytes:
     """A free decay of a linear oscillator (closed form): a valid, cheap CSV record."""
-    wn = math.sqrt(k / m)
-    zeta = c / (2 * math.sqrt(k * m))
-    wd = wn * math.sqrt(1 - zeta ** 2)
-    t = np.arange(n) / fs
-    e = np.exp(-zeta * wn * t)
-    x = v0 / wd * e * np.sin(wd * t)
-    v = v0 * e * (np.cos(wd * t) - zeta * wn / wd * np.sin(wd * t))
-    a = -(c * v + k * x) / m
-    lines = ["time,disp_x,vel_x,acc_x"]
-    lines += [f"{ti:.10e},{xi:.10e},{vi:.10e},{ai:.10e}" for ti, xi, vi, ai in zip(t, x, v, a)]
-    return ("\n".join(lines) + "\n").encode()
+    return free_decay(v0, n, fs, m=m, k=k, c=c).to_csv().encode()
 
 
 def linear_spec() -> dict[str, Any]:

@@ -1,7 +1,6 @@
 """`SivaClient` and `siva-client` against the real server, plus offline error handling."""
 from __future__ import annotations
 
-import io
 import json
 import os
 import subprocess
