@@ -233,3 +233,23 @@ def test_auto_finds_the_hum(shared_data, lono_model):
     assert [round(x) for x in proc.summary.lines_hz] == [60]
     assert proc.bandpass[1] > 60.0 and [round(x) for x in proc.notch] == [60]
     assert 5.0 < proc.summary.first_hz < 7.0  # the linear mode at 5.7 Hz
+
+
+def test_auto_keeps_the_unknown_initial_velocity_of_a_clean_free_decay(shared_data):
+    """Acceleration alone of a decay starting at 5 m/s: integration constants from the
+    decayed tail recover velocity and displacement (a high-pass would remove them)."""
+    exact = Recording.read(shared_data / "duffing" / "train_v5.csv", ["x"])
+    acc_only = Recording(exact.time, {"acc_x": exact.channels["acc_x"]}, "acc_only.csv")
+    proc = Processing.auto([acc_only], ["x"])
+    assert proc.drift == "tail" and proc.highpass is None
+    q, v, _, _ = proc.derive(acc_only, ["x"])
+    peak_q = np.abs(exact.channels["disp_x"]).max()
+    peak_v = np.abs(exact.channels["vel_x"]).max()
+    assert np.abs(v[:, 0] - exact.channels["vel_x"]).max() < 1e-3 * peak_v
+    assert np.abs(q[:, 0] - exact.channels["disp_x"]).max() < 5e-3 * peak_q
+    # a noisy record keeps the high-pass: integrated noise would drift
+    rng = np.random.default_rng(3)
+    a = exact.channels["acc_x"]
+    noisy = Recording(exact.time, {"acc_x": a + 0.003 * np.abs(a).max() * rng.normal(size=a.size)},
+                      "noisy.csv")
+    assert Processing.auto([noisy], ["x"]).drift == "highpass"

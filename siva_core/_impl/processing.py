@@ -104,6 +104,12 @@ class Processing:
         the derivative's gain error small up to a good fraction of Nyquist.
     integrator: "trapezoid" (the paper's cumtrapz) or "simpson" (cumulative Simpson: about
         3x smaller error across a sharp impact pulse, whose error becomes velocity drift).
+    drift: how integration constants are handled.  "highpass": the integral starts at 0
+        and the high-pass (if set) removes the drift (the paper).  "tail": for a free
+        decay that dies out within the record, the constant is chosen so that the integral
+        has zero mean over the last ``TAIL_FRACTION`` of the record (where the structure is
+        back at rest): this recovers an unknown initial velocity/displacement exactly,
+        where a high-pass would remove it together with the response's slow content.
     pad: seconds of zeros added before and after the record for the derivation (the
         structure at rest).  Zero-phase filters ring *before* an impact as well as after;
         without room before the record's first sample that part is lost from the integral,
@@ -127,6 +133,7 @@ class Processing:
     integrator: str = "trapezoid"
     pad: float = 0.0
     gate_margin: float = 0.0
+    drift: str = "highpass"
     # what auto() read off the spectra: an attribute, not a setting (not in asdict/eq)
     summary: ClassVar[SpectrumSummary | None] = None
 
@@ -180,6 +187,11 @@ class Processing:
            - stationary lines in (fh, fl) get zero-phase notches (Q = 30) rather than a
              low-pass below them, which would cut the nonlinear harmonics above the hum.
            acc-only DOFs: band-pass (fh, fl), integrate twice (Simpson) with high-pass fh.
+           Exception, a clean free decay (no force, the most derivative signal's RMS over
+           the last 20 % below 0.1 x that over the first 20 %, and integrated noise
+           negligible: fh from noise < 4 / duration): low-pass fl only and ``drift="tail"``
+           (integration constants from the record's decayed tail), which keeps an unknown
+           initial velocity that a high-pass would remove.
            disp-only DOFs: low-pass fl then 6th-order central differences.
         3. All signals, force included, get the same total filter (``consistent``), and an
            impulsive force (above 2 % of its peak for < 10 % of the record) is gated to
@@ -242,6 +254,11 @@ class Processing:
             # the low-pass rings for a few of its periods at the record's ends
             trim=float(min(4.0 / fl, 0.02 * duration)) if fl > 0 else 0.0,
         )
+        if (needs_int and not any_force and summary.noise_hz is not None
+                and summary.noise_hz < 4.0 / duration and all(_decays(r, dofs) for r in recs)):
+            # a clean free decay: integration constants from the decayed tail, no high-pass
+            settings.update(bandpass=(0.0, fl) if has_acc else None, highpass=None,
+                            drift="tail")
         settings.update(overrides)
         out = cls(**settings)
         out.summary = summary
@@ -252,6 +269,9 @@ class Processing:
         nyq = fs / 2
         if kind == "band":
             lo, hi = cut
+            if lo <= 0:
+                return signal.butter(self.order, min(hi, 0.95 * nyq), btype="lowpass", fs=fs,
+                                     output="sos")
             if hi >= 0.95 * nyq:
                 return signal.butter(self.order, lo, btype="highpass", fs=fs, output="sos")
             return signal.butter(self.order, [lo, hi], btype="bandpass", fs=fs, output="sos")
@@ -307,6 +327,11 @@ class Processing:
             y = y + x0
         if self.highpass is not None:
             y = self._filt(y, "high", self.highpass, fs)
+        if self.drift == "tail":
+            n_tail = max(1, int(TAIL_FRACTION * y.shape[0]))
+            y = y - y[-n_tail:].mean(axis=0)
+        elif self.drift != "highpass":
+            raise ValueError(f"drift must be 'highpass' or 'tail', got {self.drift!r}")
         return np.moveaxis(y, 0, axis)
 
     def differentiate(self, x: np.ndarray, fs: float, axis: int = 0) -> np.ndarray:
@@ -363,6 +388,8 @@ class Processing:
                 q = np.asarray(dq, float)
             else:
                 q, lq = self.integrate(v, fs, axis=-1), lv + Counter(high)
+                if self.drift == "tail" and dv is None and da is not None:
+                    v, q = _joint_tail_constants(v, q, fs)
             if a is None:
                 a, la = self.differentiate(v, fs, axis=-1), lv + Counter(low)
             qs.append(q)
@@ -558,6 +585,37 @@ def central_difference(x: np.ndarray, dt: float, axis: int = 0,
 
 
 # ---------------------------------------------------------------------- helpers for auto
+TAIL_FRACTION = 0.2
+
+
+def _joint_tail_constants(v: np.ndarray, q: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity and displacement both integrated from acceleration (time on the last axis):
+    choose the constants (q0, v0) so that q + q0 + v0 t has zero mean and no trend over the
+    decayed tail.  A velocity offset left by a tail mean over partial cycles would otherwise
+    become a displacement drift; fitting the drift pins v0 far more precisely."""
+    n = q.shape[-1]
+    m = max(2, int(TAIL_FRACTION * n))
+    t = np.arange(n) / fs
+    tt = t[-m:]
+    A = np.stack([np.ones(m), tt - tt.mean()], axis=1)
+    coef = np.linalg.lstsq(A, -np.moveaxis(q[..., -m:], -1, 0).reshape(m, -1), rcond=None)[0]
+    v0 = coef[1].reshape(q.shape[:-1])[..., None]
+    q0 = (coef[0] - coef[1] * tt.mean()).reshape(q.shape[:-1])[..., None]
+    # v was already shifted by its own tail mean; the fit corrects what remains
+    return v + v0, q + q0 + v0 * t
+
+
+def _decays(rec: Recording, dofs: Sequence[str], ratio: float = 0.1) -> bool:
+    """The response dies out within the record: tail RMS < ratio x head RMS on every DOF."""
+    for d in dofs:
+        x = next((rec.get(q, d) for q in ("acc", "vel", "disp") if rec.get(q, d) is not None))
+        n = max(1, int(TAIL_FRACTION * len(x)))
+        head, tail = np.sqrt(np.mean(x[:n] ** 2)), np.sqrt(np.mean(x[-n:] ** 2))
+        if not tail < ratio * head:
+            return False
+    return True
+
+
 def _pulse_gate(mag: np.ndarray, threshold: float, margin: int) -> np.ndarray:
     """1 on samples within ``margin`` of |F| > threshold x peak, else 0."""
     on = mag > threshold * mag.max()

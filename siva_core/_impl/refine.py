@@ -159,13 +159,16 @@ class OutputErrorProblem:
                               st.start_index, st.decimation))
         return out
 
-    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None
+    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
+                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None
                    ) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` for all sets, run the chain once on (B, T, n)
         arrays (``Processing.apply_simulated``).  Returns (States with (B, T', n) arrays,
         (B,) mask of sets whose simulation stayed finite)."""
         r = self.records[k]
-        sim = simulate(self.structure, thetas, r.rec.time, r.q0, r.v0, r.force,
+        q0 = r.q0 if dq0 is None else r.q0 + dq0
+        v0 = r.v0 if dv0 is None else r.v0 + dv0
+        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, r.force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
                        force_scale=force_scale, staged_force=r.staged(self.interp))
         q, v, a = sim.q, sim.v, sim.a
@@ -176,11 +179,13 @@ class OutputErrorProblem:
         st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a)
         return st, ok
 
-    def residuals(self, thetas: Any, force_scales: np.ndarray | None = None) -> np.ndarray:
+    def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
+                  dq0: np.ndarray | None = None, dv0: np.ndarray | None = None) -> np.ndarray:
         """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
         squares is the mean NMSE over records and DOFs (each DOF of each record divided by
         its measured RMS, so records and DOFs of different amplitude weigh the same).
-        ``force_scales`` (B, n_records): optional per-record force multipliers."""
+        ``force_scales`` (B, n_records): optional per-record force multipliers;
+        ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state."""
         th = np.atleast_2d(np.asarray(thetas, dtype=float))
         B = th.shape[0]
         out = np.empty((B, self.n_residuals))
@@ -188,7 +193,8 @@ class OutputErrorProblem:
         groups = self.n_groups
         for k, r in enumerate(self.records):
             fs = None if force_scales is None else force_scales[:, k]
-            st, ok = self._processed(th, k, fs)
+            st, ok = self._processed(th, k, fs, None if dq0 is None else dq0[:, k],
+                                     None if dv0 is None else dv0[:, k])
             size = r.target.size
             w = 1.0 / (r.rms * math.sqrt(r.target.shape[0] * groups))
             sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
@@ -371,6 +377,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            interp: str = "linear", omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
+           fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0) -> RefineResult:
     """Output-error refinement from theta0 (e.g. SIVA's Approach III).
@@ -401,6 +408,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     log-scaled from 1).  An impact's response depends so strongly on its impulse that 0.2 %
     force-sensor noise in the pulse (0.1 % impulse) moves a hardening record's late response
     by several %; without this the parameters absorb the error.
+    ``fit_initial``: also fit offsets of each record's initial displacement and velocity
+    (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
+    force whose displacement or velocity is derived rather than measured (a free decay
+    recorded by accelerometers: its starting state is only known through integration).
     """
     t_start = time.perf_counter()
     theta0 = np.asarray(theta0, dtype=float).ravel()
@@ -436,16 +447,38 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     lo_th = np.array([_bound(structure.parameters[p].lower, -np.inf) for p in free])
     hi_th = np.array([_bound(structure.parameters[p].upper, np.inf) for p in free])
     lower, upper = _x_bounds(theta0, scale, is_log, lo_th, hi_th)
-    n_x = len(free) + (n_rec if fit_force_scale else 0)
+    n_dof = structure.n_dof
+    if fit_initial == "auto":
+        fit_initial = all(r.force is None and _state_derived(r.rec, structure.dofs)
+                          for r in full.records)
+    n_fs = n_rec if fit_force_scale else 0
+    n_ic = 2 * n_dof * n_rec if fit_initial else 0
+    n_x = len(free) + n_fs + n_ic
     if fit_force_scale:
         lower = np.concatenate([lower, np.full(n_rec, math.log(0.5))])
         upper = np.concatenate([upper, np.full(n_rec, math.log(2.0))])
+    ic_scale = np.zeros(0)
+    if fit_initial:
+        # offsets in units of each record's (processed) displacement / velocity RMS
+        sc = []
+        for r in full.records:
+            st0 = full.chain.apply(r.rec, structure.dofs)
+            sc.append(np.concatenate([np.sqrt(np.mean(st0.q ** 2, axis=0)),
+                                      np.sqrt(np.mean(st0.v ** 2, axis=0))]))
+        ic_scale = np.maximum(np.concatenate(sc), 1e-300)
+        lower = np.concatenate([lower, np.full(n_ic, -np.inf)])
+        upper = np.concatenate([upper, np.full(n_ic, np.inf)])
 
-    def to_theta(X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def to_theta(X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         Xp = X[:, :len(free)]
         th = np.where(is_log, theta0 * np.exp(np.where(is_log, Xp, 0.0)), theta0 + scale * Xp)
-        fsc = np.exp(X[:, len(free):]) if fit_force_scale else None
-        return th, fsc
+        extra: dict[str, np.ndarray] = {}
+        if fit_force_scale:
+            extra["force_scales"] = np.exp(X[:, len(free):len(free) + n_fs])
+        if fit_initial:
+            ic = (X[:, len(free) + n_fs:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
+        return th, extra
 
     x = np.zeros(n_x)
     x = np.clip(x, lower, upper)
@@ -470,12 +503,15 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         x = res.x
         stages.append({"fraction": frac, "nfev": int(res.nfev), "cost": float(2 * res.cost)})
     assert res is not None
-    th, fsc = to_theta(res.x[None])
+    th, extra = to_theta(res.x[None])
     theta = th[0]
-    # d theta / d x at the optimum, then the Jacobian in theta (and force-scale) units
+    fsc = extra.get("force_scales")
+    # d theta / d x at the optimum, then the Jacobian in theta (and nuisance) units
     dth = np.where(is_log, theta, scale)
     if fit_force_scale:
         dth = np.concatenate([dth, fsc[0]])
+    if fit_initial:
+        dth = np.concatenate([dth, ic_scale])
     # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
     # (inverting J^T J in theta units would mix 1e7 and 1e0 scales and lose the small ones)
     r = res.fun
@@ -491,6 +527,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         time_s=time.perf_counter() - t_start,
                         ci_inflation=_inflation(full, r), names=free,
                         force_scale=None if fsc is None else fsc[0], stages=stages)
+
+
+def _state_derived(rec: Recording, dofs: Sequence[str]) -> bool:
+    """Some DOF's displacement or velocity is not measured (the chain derives it)."""
+    return any(rec.get("disp", d) is None or rec.get("vel", d) is None for d in dofs)
 
 
 def _bound(v: float | None, default: float) -> float:
@@ -552,8 +593,8 @@ def _horizons(prob: OutputErrorProblem, horizons: Sequence[float] | str | None,
     if isinstance(horizons, str):
         if horizons != "auto":
             raise ValueError(f"horizons must be 'auto', None or fractions, got {horizons!r}")
-        th, fsc = to_theta(x0[None])
-        cost0 = float(np.sum(prob.residuals(th, fsc) ** 2))
+        th, extra = to_theta(x0[None])
+        cost0 = float(np.sum(prob.residuals(th, **extra) ** 2))
         if np.isfinite(cost0) and cost0 < HORIZON_SKIP_COST:
             return [1.0]
         return _auto_horizons(prob, min_samples=8 * n_x)
@@ -611,8 +652,8 @@ def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.nd
     n = x0.size
 
     def evaluate(X: np.ndarray) -> np.ndarray:
-        th, fsc = to_theta(X)
-        return prob.residuals(th, fsc)
+        th, extra = to_theta(X)
+        return prob.residuals(th, **extra)
 
     def fun(x: np.ndarray) -> np.ndarray:
         return evaluate(x[None])[0]
