@@ -77,6 +77,26 @@ class ParameterSummary(_Open):
     ci95: list[float | None] | None
 
 
+class BestParameter(_Open):
+    value: float | None
+    std: float | None = Field(None, description="Gauss-Newton std (inflated for correlated "
+                                                "residuals); null when not refined")
+    ci95: list[float | None] | None = None
+
+
+class Best(_Open):
+    """The recommended value of ``Siva.fit``: Approach III over the running ensemble, then
+    the output-error refinement through the processing chain (background thread)."""
+
+    parameters: dict[str, BestParameter]
+    epoch: int = Field(description="trainer epoch whose ensemble gave the candidates")
+    n_records: int = Field(description="most recent training records it was fitted on")
+    time: float = Field(description="Unix time it was computed")
+    output_error: float | None = Field(description="normalised output error on those records")
+    refined: bool | None = Field(None, description="false: the refinement did not lower the "
+                                                   "output error, Approach III's winner is kept")
+
+
 class Estimate(_Open):
     """GET .../estimate: the contract keys, plus state, modal, losses, data, alarms..."""
 
@@ -85,6 +105,8 @@ class Estimate(_Open):
     epoch: int
     converged: bool
     n_recordings: dict[str, int]
+    best: Best | None = Field(None, description="output-error refinement of the ensemble "
+                                                "(null until the first one finished)")
 
 
 class Alarm(_Open):

@@ -31,6 +31,9 @@ ENV_VARS: dict[str, str] = {
     "SIVA_DRIFT_REL_TOL": "drift_rel_tol",
     "SIVA_DRIFT_REFERENCE_AFTER": "drift_reference_after",
     "SIVA_TORCH_THREADS": "torch_threads",
+    "SIVA_REFINE_EVERY_S": "refine_every_s",
+    "SIVA_REFINE_MAX_RECORDS": "refine_max_records",
+    "SIVA_REFINE_CANDIDATES": "refine_candidates",
 }
 
 
@@ -59,6 +62,10 @@ class Settings:
     drift_rel_tol: float = 0.05         # minimum half-width of the band, relative to |mean|
     drift_reference_after: int = 10     # converged snapshots before the reference is frozen
     torch_threads: int = 0              # 0: torch's default
+    # Output-error refinement (``best``), in a background thread per system.
+    refine_every_s: float = 60.0        # at most this often on unchanged data; 0: off
+    refine_max_records: int = 3         # most recent train records it fits
+    refine_candidates: int = 150        # last ensemble samples tried by Approach III
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -66,12 +73,13 @@ class Settings:
             object.__setattr__(self, "api_token", None)
         positive = ("max_upload_bytes", "replay_window", "validation_window",
                     "auto_validation_every", "snapshot_every", "history_limit",
-                    "drift_consecutive", "drift_reference_after")
+                    "drift_consecutive", "drift_reference_after", "refine_max_records",
+                    "refine_candidates")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
         for name in ("replay_reservoir", "checkpoint_every_s", "idle_sleep_s", "epoch_pause_s",
-                     "drift_rel_tol", "torch_threads"):
+                     "drift_rel_tol", "torch_threads", "refine_every_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
         if self.auto_validation_every < 2:

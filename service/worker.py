@@ -13,6 +13,17 @@ a snapshot every ``snapshot_every`` epochs and checkpointing (atomically, torch.
 ``checkpoint_every_s`` seconds and on shutdown.  Without both a train and a validation
 record it sleeps.  A trainer exception is logged, shown in the snapshot, and retried after
 a back-off; it never kills the thread.
+
+``best`` (the recommended value of ``Siva.fit``: Approach III over the ensemble, then the
+output-error refinement, ``siva_core._impl.siva.recommend_best``) is computed by a second
+thread per system, the refiner, so that neither training nor reads ever wait for it.  Once
+converged, the trainer thread hands it a job (a copy of the ensemble's last samples, the
+ids of the most recent training records and the processing chain) whenever the data set
+changed since the last job, and otherwise at most every ``refine_every_s`` seconds; the
+refiner re-parses those records from the store and publishes the result into the snapshot.
+A result computed on a data set that has since been replaced is dropped.  The refiner only
+reads copies: the trainer's state and random generators are untouched, so ``siva replay``
+still reproduces the trainer exactly (``best`` itself is not replayed).
 """
 from __future__ import annotations
 
@@ -35,6 +46,11 @@ from .settings import Settings
 from .store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
 
 log = logging.getLogger("siva.service.worker")
+
+#: one refinement at a time in the process (they are CPU-heavy and use numba's threads)
+_REFINE_LOCK = threading.Lock()
+#: ensemble epochs on the current data set needed before a refinement starts from them
+REFINE_MIN_SAMPLES = 10
 
 CHECKPOINT_VERSION = 1
 
@@ -133,6 +149,17 @@ class SystemWorker:
         self._dirty = threading.Event()
         self._dirty.set()
         self._thread = threading.Thread(target=self._run, name=f"siva-trainer-{name}", daemon=True)
+        # refinement (``best``): a job slot filled by the trainer thread, emptied by the refiner
+        self._snap_lock = threading.Lock()
+        self._refine_cv = threading.Condition()
+        self._refine_job: dict[str, Any] | None = None
+        self._refine_offered: tuple[int, float] | None = None  # (data version, monotonic)
+        self._data_version = 0
+        self._data_epoch = 0
+        self._best: dict[str, Any] | None = None
+        self._best_error: str | None = None
+        self._refiner = (threading.Thread(target=self._refine_loop, name=f"siva-refine-{name}",
+                                          daemon=True) if settings.refine_every_s > 0 else None)
         self.trainer: Any = None
         self.epoch = 0
         self.checkpoint_epoch: int | None = None
@@ -162,6 +189,8 @@ class SystemWorker:
             self.trainer = None
             self._fail(f"trainer setup failed: {type(exc).__name__}: {exc}")
         self._thread.start()
+        if self._refiner is not None:
+            self._refiner.start()
 
     def notify(self) -> None:
         """New recordings are in the store: pick them up before the next epoch."""
@@ -172,8 +201,14 @@ class SystemWorker:
         """Stop after the current epoch; the thread writes a final checkpoint."""
         self._stop.set()
         self._wake.set()
+        with self._refine_cv:
+            self._refine_cv.notify_all()
+        t0 = time.monotonic()
         if self._thread.is_alive():
             self._thread.join(timeout)
+        if self._refiner is not None and self._refiner.is_alive():
+            # a refinement cannot be interrupted; its result is simply dropped (daemon thread)
+            self._refiner.join(max(0.0, min(5.0, timeout - (time.monotonic() - t0))))
 
     @property
     def alive(self) -> bool:
@@ -254,6 +289,7 @@ class SystemWorker:
             self._state = "converged" if self.trainer.converged else "training"
             if len(self._thetas) >= self.settings.snapshot_every:
                 self._publish(observe=True)
+                self._offer_refinement()
             if time.monotonic() - last_ckpt >= self.settings.checkpoint_every_s:
                 self._checkpoint()
                 last_ckpt = time.monotonic()
@@ -365,6 +401,8 @@ class SystemWorker:
         self._train_ids, self._val_ids = train, val
         if train and val and (changed or getattr(self.trainer, "train", None) is None):
             self.trainer.set_data([self._states[i] for i in train], [self._states[i] for i in val])
+            self._data_version += 1
+            self._data_epoch = int(self.trainer.epoch)
             if self.events is not None:
                 self.events.log_dataset(self.name, int(self.trainer.epoch), train, val,
                                         processing=self._proc)
@@ -429,6 +467,9 @@ class SystemWorker:
         if self._epoch_times:
             snap["seconds_per_epoch"] = float(np.mean(self._epoch_times))
         snap = jsonable(snap)
+        snap["best"] = self._best
+        if self._best_error:
+            snap["best_error"] = self._best_error
         with self._drift_lock:
             if observe and tr is not None and recent:
                 raised = self.drift.observe({
@@ -444,12 +485,106 @@ class SystemWorker:
             report = self._report()
         snap["alarms"] = [a for a in report["alarms"] if a["active"]]
         self._drift_report = report
-        self._snapshot = snap
+        with self._snap_lock:
+            # the refiner may have published a newer ``best`` while this one was built
+            snap["best"] = self._best
+            self._snapshot = snap
         if self.events is not None and observe:
             try:
                 self.events.log_snapshot(self.name, estimate_view(snap, self._counts()))
             except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
                 log.exception("%s: event log failed", self.name)
+
+    # ------------------------------------------------------------------ refinement (best)
+    def _offer_refinement(self) -> None:
+        """Trainer thread: hand the refiner a job when one is due (cheap: copies only)."""
+        tr = self.trainer
+        if self._refiner is None or tr is None or not tr.converged or not self._train_ids:
+            return
+        now = time.monotonic()
+        last = self._refine_offered
+        if (last is not None and last[0] == self._data_version
+                and now - last[1] < self.settings.refine_every_s):
+            return
+        ens = getattr(tr, "ensemble", None)
+        if ens is None or len(ens) == 0:
+            return
+        samples = np.array(ens.samples, dtype=float, copy=True)
+        epochs = np.asarray(getattr(ens, "epochs", np.full(len(samples), tr.epoch)))
+        samples = samples[epochs >= self._data_epoch]  # harvested on the current data set
+        if len(samples) < min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES):
+            return  # just after a data change: wait for samples of the new data set
+        job = {"version": self._data_version, "epoch": int(tr.epoch),
+               "candidates": samples[-self.settings.refine_candidates:],
+               "train": list(self._train_ids[-self.settings.refine_max_records:]),
+               "processing": self._proc}
+        self._refine_offered = (self._data_version, now)
+        with self._refine_cv:
+            self._refine_job = job  # a job not yet started is superseded by this one
+            self._refine_cv.notify_all()
+
+    def _refine_loop(self) -> None:
+        while not self._stop.is_set():
+            with self._refine_cv:
+                while self._refine_job is None and not self._stop.is_set():
+                    self._refine_cv.wait(1.0)
+                job, self._refine_job = self._refine_job, None
+            if job is None or self._stop.is_set():
+                continue
+            try:
+                best = self._refine(job)
+            except Exception as exc:  # noqa: BLE001 - never kills the thread or the service
+                log.exception("%s: refinement failed", self.name)
+                self._best_error = f"refinement failed: {type(exc).__name__}: {exc}"
+                continue
+            if best is None:
+                continue
+            with self._snap_lock:
+                if job["version"] != self._data_version:  # a newer data set supersedes it
+                    log.info("%s: refinement of data set %d superseded; result dropped",
+                             self.name, job["version"])
+                    continue
+                self._best = best
+                self._best_error = None
+                snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
+                snap["best"] = best
+                self._snapshot = snap
+
+    def _refine(self, job: dict[str, Any]) -> dict[str, Any] | None:
+        """Refiner thread: ``recommend_best`` on the job's records, re-parsed from the store.
+        None when the data set changed meanwhile (a newer job follows) or the service stops."""
+        from siva_core._impl.siva import recommend_best
+
+        t0 = time.perf_counter()
+        by_id = {m.id: m for m in self.store.recordings(self.name)}
+        recs = []
+        for rid in job["train"]:
+            meta = by_id.get(rid)
+            if meta is None:
+                return None  # deleted meanwhile
+            raw = self.store.read_raw(self.name, meta)
+            recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt))
+        proc = job["processing"] if job["processing"] is not None else Processing()
+        with _REFINE_LOCK:
+            if self._stop.is_set() or job["version"] != self._data_version:
+                return None
+            rec = recommend_best(self.structure, job["candidates"], recs, proc)
+        params: dict[str, Any] = {}
+        for k, p in enumerate(self.structure.free):
+            v = float(rec.theta[k])
+            s = None if rec.std is None else float(rec.std[k])
+            params[p] = {"value": v, "std": s,
+                         "ci95": None if s is None else [v - 1.96 * s, v + 1.96 * s]}
+        seconds = time.perf_counter() - t0
+        log.info("%s: best from %d candidates on %d record(s) in %.1f s (refined=%s, "
+                 "output error %.3g)", self.name, len(job["candidates"]), len(recs), seconds,
+                 rec.refined, rec.output_error if rec.output_error is not None else float("nan"))
+        return jsonable({
+            "parameters": params, "epoch": job["epoch"], "n_records": len(recs),
+            "time": time.time(), "output_error": rec.output_error,
+            "refined": rec.refined, "records": job["train"], "n_candidates": len(job["candidates"]),
+            "approach_III": self.structure.as_dict(rec.theta_III), "note": rec.note,
+            "seconds": seconds})
 
     def _counts(self) -> dict[str, int]:
         try:

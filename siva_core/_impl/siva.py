@@ -117,6 +117,77 @@ def _processing_json(p: Processing | None) -> dict | None:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(p).items()}
 
 
+@dataclass
+class Recommendation:
+    """What ``recommend_best`` found: the recommended ``theta`` (and its ``std``, None when
+    the refinement was not run or not accepted), Approach III's winner, the output error of
+    ``theta`` on the records (None without refinement) and a note for the user."""
+
+    theta: np.ndarray
+    std: np.ndarray | None
+    note: str | None
+    theta_III: np.ndarray
+    output_error: float | None
+    refined: bool
+    refine_result: Any = None
+    timing_s: dict[str, float] = field(default_factory=dict)
+
+    def __iter__(self):  # ``theta, std, note = recommend_best(...)``
+        return iter((self.theta, self.std, self.note))
+
+
+def recommend_best(structure: Structure, candidates: Any, train: Sequence[Recording],
+                   processing: Processing, *, refine: bool = True) -> Recommendation:
+    """SIVA's recommended value from ensemble candidates (``Siva.fit`` and the service).
+
+    Approach III: every candidate (rows of ``candidates``) is simulated on the raw training
+    records in one batch and the one with the smallest displacement MSE wins.  Then
+    ``best``: the output-error refinement (``refine.refine``) from that winner, through the
+    same processing chain, kept only when it succeeded and does not raise the output error;
+    otherwise ``best`` is the Approach III winner and ``std`` is None.
+
+    Pure: reads its arguments, touches no trainer state or random generator.
+    """
+    from .refine import displacement_mse, output_error
+    from .refine import refine as _refine
+
+    st = structure
+    names = st.free
+    train = list(train)
+    cand = np.atleast_2d(np.asarray(candidates, dtype=float))
+    if cand.size == 0 or not train:
+        raise ValueError("recommend_best needs at least one candidate and one training record")
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    mse = displacement_mse(st, cand, train, processing)
+    theta_III = cand[int(np.nanargmin(mse))].copy() if np.isfinite(mse).any() else cand[-1].copy()
+    timing["approach_III"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    best, best_std, note, oe, refined, res = theta_III.copy(), None, None, None, False, None
+    if refine:
+        # An impact's response scales with its impulse: with a force sensor and no
+        # identified gain, one force multiplier per record is fitted as a nuisance
+        # parameter so that sensor error is not absorbed by the structure's parameters.
+        gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
+        forced = all(r.has_force(st.dofs) for r in train)
+        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains)
+        c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
+        if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
+            # Gauss-Newton std, inflated for the correlation of filtered residuals
+            best, best_std = res.theta, res.std * max(1.0, float(res.ci_inflation))
+            oe, refined = float(c_ref[1]), True
+            if res.force_scale is not None:
+                note = ("best: fitted force scale per training record "
+                        + ", ".join(f"{r.name}={f:.4f}"
+                                    for r, f in zip(train, np.ravel(res.force_scale))))
+        else:
+            oe = float(c_ref[0])
+            note = f"refinement did not improve on Approach III ({res.message})"
+    timing["refine"] = time.perf_counter() - t0
+    return Recommendation(np.asarray(best, dtype=float), best_std, note, theta_III, oe, refined,
+                          res, timing)
+
+
 class Siva:
     """SIVA estimator (scikit-learn style: settings in ``__init__``, ``fit`` returns self).
 
@@ -210,38 +281,15 @@ class Siva:
         summ_II = normal_summary(samples_II, names)
         timing["approach_I_II"] = time.perf_counter() - t0
 
-        # --- Approach III: simulate every candidate in one batch, keep the best match
-        from .refine import displacement_mse, output_error, refine
-
-        t0 = time.perf_counter()
-        cand = samples_II[-self.n_candidates:]
-        mse = displacement_mse(st, cand, train, proc)
-        theta_III = cand[int(np.argmin(mse))]
-        timing["approach_III"] = time.perf_counter() - t0
-
-        # --- best: output-error refinement from Approach III
-        best, best_std = theta_III.copy(), None
-        t0 = time.perf_counter()
-        self.refine_ = None
-        if self.refine:
-            # An impact's response scales with its impulse: with a force sensor and no
-            # identified gain, one force multiplier per record is fitted as a nuisance
-            # parameter so that sensor error is not absorbed by the structure's parameters.
-            gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
-            forced = all(r.has_force(st.dofs) for r in train)
-            res = refine(st, theta_III, train, proc, fit_force_scale=forced and not gains)
-            self.refine_ = res
-            c_ref = output_error(st, np.stack([theta_III, res.theta]), train, proc)
-            if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
-                # Gauss-Newton std, inflated for the correlation of filtered residuals
-                best, best_std = res.theta, res.std * max(1.0, float(res.ci_inflation))
-                if res.force_scale is not None:
-                    notes.append("best: fitted force scale per training record "
-                                 + ", ".join(f"{r.name}={f:.4f}"
-                                             for r, f in zip(train, np.ravel(res.force_scale))))
-            else:
-                notes.append(f"refinement did not improve on Approach III ({res.message})")
-        timing["refine"] = time.perf_counter() - t0
+        # --- Approach III (one batched simulation of the candidates), then ``best``: the
+        # output-error refinement from it (shared with the service: ``recommend_best``)
+        rec = recommend_best(st, samples_II[-self.n_candidates:], train, proc, refine=self.refine)
+        theta_III, best, best_std = rec.theta_III, rec.theta, rec.std
+        self.refine_ = rec.refine_result
+        if rec.note:
+            notes.append(rec.note)
+        timing["approach_III"] = rec.timing_s["approach_III"]
+        timing["refine"] = rec.timing_s["refine"]
 
         # --- metrics on training and (held-out) validation records
         t0 = time.perf_counter()
