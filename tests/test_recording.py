@@ -81,36 +81,18 @@ def test_trailing_separators_and_blank_end_lines(small_columns):
 
 
 # ------------------------------------------------------------------------- refused
-def test_nan_cell_names_column_and_row(small_columns):
+@pytest.mark.parametrize("line, col, value, expect", [
+    (5, 2, "nan", ("'acc_x'", "row 6", "not finite")),  # acc_x, data row 4 = file row 6
+    (10, 1, "-inf", ("'disp_x'", "row 11", "not finite")),
+    (3, 3, "", ("'force_x'", "row 4", "not a number")),
+    (7, 1, "12;5", ("'disp_x'", "row 8", "'12;5' is not a number")),
+], ids=["nan", "inf", "empty", "non-numeric"])
+def test_bad_cell_names_column_and_row(small_columns, line, col, value, expect):
     lines = _lines(small_columns)
-    cells = lines[5].split(",")
-    cells[2] = "nan"  # acc_x, data row 4 = file row 6
-    lines[5] = ",".join(cells)
-    _refused("\n".join(lines), "'acc_x'", "row 6", "not finite")
-
-
-def test_inf_cell_names_column_and_row(small_columns):
-    lines = _lines(small_columns)
-    cells = lines[10].split(",")
-    cells[1] = "-inf"
-    lines[10] = ",".join(cells)
-    _refused("\n".join(lines), "'disp_x'", "row 11", "not finite")
-
-
-def test_empty_cell_is_not_a_number(small_columns):
-    lines = _lines(small_columns)
-    cells = lines[3].split(",")
-    cells[3] = ""
-    lines[3] = ",".join(cells)
-    _refused("\n".join(lines), "'force_x'", "row 4", "not a number")
-
-
-def test_non_numeric_cell(small_columns):
-    lines = _lines(small_columns)
-    cells = lines[7].split(",")
-    cells[1] = "12,5".replace(",", ";")
-    lines[7] = ",".join(cells)
-    _refused("\n".join(lines), "'disp_x'", "row 8", "'12;5' is not a number")
+    cells = lines[line].split(",")
+    cells[col] = value
+    lines[line] = ",".join(cells)
+    _refused("\n".join(lines), *expect)
 
 
 def test_ragged_short_row(small_columns):

@@ -9,12 +9,11 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -393,12 +392,3 @@ def _check_unit(unit: str | None, qty: str, col: str, name: str) -> None:
     if u not in UNITS[qty]:
         raise RecordingError(f"{name}: column {col!r}: unit [{unit}] is not the expected "
                              f"{sorted(UNITS[qty])[0]} (convert to SI units)")
-
-
-def read_recordings(paths: Iterable[str | Path],
-                    dofs: Sequence[str] | None = None) -> list[Recording]:
-    return [Recording.read(p, dofs) for p in paths]
-
-
-def sampling_consistent(recs: Sequence[Recording]) -> bool:
-    return all(math.isclose(r.dt, recs[0].dt, rel_tol=1e-6) for r in recs)

@@ -60,6 +60,7 @@ class _Record:
     target: np.ndarray           # (T', n_dof) processed measured values of those quantities
     rms: np.ndarray              # (n_dof,) RMS of each target column
     substeps: int = 1
+    state_rms: np.ndarray | None = None  # (2 n_dof,) RMS of processed q then v (scales)
     _staged: tuple[int, str, np.ndarray] | None = None
 
     def staged(self, interp: str) -> np.ndarray | None:
@@ -142,7 +143,9 @@ class OutputErrorProblem:
                 th = np.atleast_2d(np.asarray(theta_ref, dtype=float))
                 m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
                                   omega_h=omega_h, backend=use, interp=interp)
-            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m))
+            state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
+                                        np.sqrt(np.mean(meas.v ** 2, axis=0))])
+            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
         return cls(structure, prepared, processing, use, interp, chain)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
@@ -222,7 +225,8 @@ class OutputErrorProblem:
             target = _extract(meas, r.quantities)
             force = None if r.force is None else r.force[:len(rec)]
             recs.append(_Record(rec, r.q0, r.v0, force, r.quantities, target,
-                                np.sqrt(np.mean(target ** 2, axis=0)), r.substeps))
+                                np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
+                                r.state_rms))
         return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
                                   self.interp, self.chain)
 
@@ -460,12 +464,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ic_scale = np.zeros(0)
     if fit_initial:
         # offsets in units of each record's (processed) displacement / velocity RMS
-        sc = []
-        for r in full.records:
-            st0 = full.chain.apply(r.rec, structure.dofs)
-            sc.append(np.concatenate([np.sqrt(np.mean(st0.q ** 2, axis=0)),
-                                      np.sqrt(np.mean(st0.v ** 2, axis=0))]))
-        ic_scale = np.maximum(np.concatenate(sc), 1e-300)
+        ic_scale = np.maximum(np.concatenate([r.state_rms for r in full.records]), 1e-300)
         lower = np.concatenate([lower, np.full(n_ic, -np.inf)])
         upper = np.concatenate([upper, np.full(n_ic, np.inf)])
 
