@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
@@ -34,7 +35,7 @@ from siva_core._impl.diagnose import diagnose, synthetic_impacts, with_effect  #
 from siva_core._impl.recording import Recording  # noqa: E402
 from siva_core._impl.structure import Structure  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data"
+DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MODEL = ROOT / "examples" / "models" / "lono.toml"
 
 SYNTHETIC = {

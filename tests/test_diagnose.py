@@ -25,8 +25,10 @@ from siva_core._impl.elements import REGISTRY
 from siva_core._impl.structure import Structure
 from siva_core._impl.recording import Recording
 
+from conftest import find_shared_data
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
+DATA = find_shared_data() or ROOT.parent / "shared" / "data"
 MODEL = ROOT / "examples" / "models" / "lono.toml"
 GAPS = DATA / "gap_examples"
 

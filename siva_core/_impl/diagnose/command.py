@@ -1,0 +1,36 @@
+"""`siva diagnose` on the command line."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..recording import Recording
+from ..structure import Structure
+from .outputs import _say
+from .report import html_report
+from .run import diagnose
+
+
+def diagnose_command(args: argparse.Namespace) -> int:
+    """`siva diagnose MODEL --train CSV... --val CSV... [--out FILE] [--html FILE]`."""
+    structure = Structure.from_file(args.model)
+    train = [Recording.read(p, structure.dofs) for p in args.train]
+    val = [Recording.read(p, structure.dofs) for p in args.val]
+    progress = None if getattr(args, "quiet", False) else _stderr
+    diag = diagnose(structure, train, val, getattr(args, "processing", "auto"),
+                    progress=progress)
+    text = json.dumps(diag.to_json(), indent=2)
+    if getattr(args, "out", None):
+        Path(args.out).write_text(text + "\n")
+    else:
+        sys.stdout.write(text + "\n")
+    if getattr(args, "html", None):
+        Path(args.html).write_text(html_report(diag))
+        _say(progress, f"report: {args.html}")
+    return 0
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)

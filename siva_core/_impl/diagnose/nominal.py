@@ -1,0 +1,99 @@
+"""The nominal output-error fit of the model as given (step 1 of the method)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..processing import Processing
+from ..recording import Recording
+from ..structure import Structure
+from .outputs import Progress, _say
+from .settings import DiagnoseSettings
+
+
+def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
+    """A start worth simulating: finite, linear modes below 0.4 x the sampling rate and
+    not unstable.  Least squares on badly derived states can return stiffnesses whose
+    modes the records cannot even resolve; such a start would only force huge substeps."""
+    if not np.all(np.isfinite(theta)):
+        return False
+    try:
+        modes = structure.linear_modes(theta)
+    except Exception:  # noqa: BLE001 - a start whose linearisation fails is not plausible
+        return False
+    return (all(f < 0.4 * fs for f in modes["frequency_hz"])
+            and all(z > -1e-3 for z in modes["damping_ratio"]))
+
+
+@dataclass
+class NominalFit:
+    """The nominal output-error fit and the equation-error fit it started from (kept for
+    the equation-error screen: its states, chain and parameters)."""
+
+    theta: np.ndarray
+    train_cost: float
+    start: str
+    ls_theta: np.ndarray | None = None
+    ls_chain: Processing | None = None
+
+
+def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processing,
+                settings: DiagnoseSettings, progress: Progress | None = None) -> NominalFit:
+    """Output-error fit of the model as given on the train records.
+
+    Start: the user's ``nominal_start``, else equation-error least squares on the train
+    states of the chosen chain and, when different, of the data-driven ``Processing.auto``
+    chain (least squares on states integrated without high-pass drifts is useless); each
+    plausible start is costed alone (a batch would take the substeps of the stiffest) and
+    the best is refined (``refine``, growing horizons).
+    """
+    from .baselines import least_squares
+    from .refine import output_error, refine
+
+    fs = min(r.fs for r in train)
+    starts: list[tuple[str, np.ndarray, Processing | None]] = []
+    if settings.nominal_start is not None:
+        starts.append(("given", structure.vector(settings.nominal_start), None))
+    chains: list[tuple[str, Processing]] = [("least squares", proc)]
+    try:
+        auto = Processing.auto(list(train), structure.dofs)
+        if auto != proc:
+            chains.append(("least squares (auto chain)", auto))
+    except Exception:  # noqa: BLE001 - an optional second start
+        pass
+    for label, chain in chains:
+        try:
+            fit = least_squares(structure, [chain.apply(r, structure.dofs) for r in train])
+            th = structure.vector(fit)
+        except Exception as exc:  # noqa: BLE001 - try the next start
+            _say(progress, f"nominal start {label} failed: {exc}")
+            continue
+        if _plausible(structure, th, fs):
+            starts.append((label, th, chain))
+        else:
+            _say(progress, f"nominal start {label} rejected (implausible: "
+                           f"{structure.as_dict(th)})")
+    if not starts:
+        raise ValueError("diagnose: no usable start for the nominal fit (least squares gave "
+                         "nothing plausible); pass initial values")
+    costs = []
+    for _, th, _ in starts:
+        try:
+            costs.append(float(output_error(structure, th[None], list(train), proc)[0]))
+        except Exception:  # noqa: BLE001 - a start that cannot be simulated is skipped
+            costs.append(math.inf)
+    best = int(np.argmin(costs))
+    if not np.isfinite(costs[best]):
+        raise ValueError("diagnose: the nominal model diverges from every start")
+    label, th0, _ = starts[best]
+    ls = [(c, th, ch) for c, (_, th, ch) in zip(costs, starts) if ch is not None]
+    ls_cost, ls_theta, ls_chain = min(ls, key=lambda x: x[0]) if ls else (0, None, None)
+    _say(progress, f"nominal start: {label} (train cost {costs[best]:.4g})")
+    res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev)
+    c = float(output_error(structure, res.theta[None], list(train), proc)[0])
+    if c <= costs[best]:
+        return NominalFit(res.theta, c, label, ls_theta, ls_chain)
+    return NominalFit(th0, costs[best], label, ls_theta, ls_chain)

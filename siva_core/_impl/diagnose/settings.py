@@ -1,0 +1,43 @@
+"""The knobs of a diagnosis (one dataclass, the documented defaults)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+
+@dataclass
+class DiagnoseSettings:
+    """Knobs of the diagnosis; the defaults are the documented method.
+
+    top_k: candidates fitted by output error after screening (the rest are only screened).
+    max_per_kind: at most this many locations of one kind among them, so that a rival of a
+        different kind is always fitted (the verdict compares against it).
+    nominal_nfev / fit_nfev: cost-evaluation budgets of the nominal and candidate fits.
+    closure_min: least validation closure for a verdict (share of the gap removed).
+    separation: the verdict's gap_after must be at most this fraction of the best
+        other-kind candidate's gap_after.
+    record_tolerance: no validation record may get worse by more than this fraction.
+    noise_factor: the nominal validation gap must exceed this multiple of the estimated
+        noise floor, else the nominal model already fits to the noise level (null).
+    gap_min: ... and it must exceed this normalised output error (0.005 = 7 % RMS error):
+        below it the nominal model fits as well as parameter extrapolation from the train
+        amplitudes allows, and any flexible element "explains" that residue.
+    ee_strong: a candidate explaining at least this share of the equation-error residual
+        is fitted too, whatever its output-error score (strong effects such as a clearance
+        can keep the nominal output-error fit so far off that its linearisation misleads).
+    effects: names of the effects to try (default: all registered).
+    nominal_start: initial values of the nominal parameters (skips the least-squares start).
+    """
+
+    top_k: int = 3
+    max_per_kind: int = 2
+    nominal_nfev: int = 40
+    fit_nfev: int = 40
+    closure_min: float = 0.5
+    separation: float = 0.75
+    record_tolerance: float = 0.05
+    noise_factor: float = 2.0
+    gap_min: float = 0.005
+    ee_strong: float = 0.25
+    effects: Sequence[str] | None = None
+    nominal_start: Mapping[str, float] | None = None

@@ -1,0 +1,50 @@
+"""The verdict rule (step 5): name a candidate only when it clearly and consistently
+closes a gap that is above the noise."""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .results import Candidate
+from .settings import DiagnoseSettings
+
+
+def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float | None,
+           settings: DiagnoseSettings) -> tuple[Candidate | None, dict[str, Any]]:
+    """The documented verdict rule (module doc, step 5); returns (verdict, checks)."""
+    rule: dict[str, Any] = {"closure_min": settings.closure_min,
+                            "separation": settings.separation,
+                            "record_tolerance": settings.record_tolerance,
+                            "noise_factor": settings.noise_factor,
+                            "gap_min": settings.gap_min}
+    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure)]
+    if not fitted:
+        rule["reason"] = "no candidate could be fitted"
+        return None, rule
+    top = fitted[0]
+    rival = next((c for c in fitted[1:] if c.effect.kind != top.effect.kind), None)
+    checks = {
+        "above_noise": bool(gap_before > settings.gap_min and (
+            noise_floor is None or gap_before > settings.noise_factor * noise_floor)),
+        "closure": bool(top.closure >= settings.closure_min),
+        "separation": bool(rival is None or not np.isfinite(rival.gap_after)
+                           or top.gap_after <= settings.separation * rival.gap_after),
+        "consistent": bool(all(p["closure"] is not None and
+                               p["closure"] >= -settings.record_tolerance
+                               for p in top.per_record)),
+    }
+    rule.update({"candidate": top.label(), "rival": rival.label() if rival else None,
+                 "checks": checks})
+    if all(checks.values()):
+        rule["reason"] = "all checks pass"
+        return top, rule
+    failed = [k for k, ok in checks.items() if not ok]
+    reasons = {"above_noise": "the nominal model already fits the validation records to "
+                              f"the noise level or within {settings.gap_min:g} NMSE",
+               "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
+                          "of the validation gap",
+               "separation": "a candidate of another kind explains the gap about as well",
+               "consistent": "the best candidate makes a validation record worse"}
+    rule["reason"] = "; ".join(reasons[k] for k in failed)
+    return None, rule
