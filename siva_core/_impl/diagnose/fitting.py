@@ -26,7 +26,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     estimate (its best shape), and the joint equation-error solution when there is one;
     each start is costed, the best is refined (growing horizons: a new element shifts the
     phase late in long records, where the landscape has local minima)."""
-    from .refine import output_error, refine
+    from ..refine import output_error, refine
 
     t0 = time.perf_counter()
     eff = c.effect

@@ -50,8 +50,8 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
     plausible start is costed alone (a batch would take the substeps of the stiffest) and
     the best is refined (``refine``, growing horizons).
     """
-    from .baselines import least_squares
-    from .refine import output_error, refine
+    from ..baselines import least_squares
+    from ..refine import output_error, refine
 
     fs = min(r.fs for r in train)
     starts: list[tuple[str, np.ndarray, Processing | None]] = []

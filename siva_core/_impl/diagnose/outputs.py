@@ -28,7 +28,7 @@ class _Outputs:
 
     def __init__(self, structure: Structure, records: Sequence[Recording], proc: Processing,
                  theta_ref: np.ndarray) -> None:
-        from .refine import OutputErrorProblem
+        from ..refine import OutputErrorProblem
 
         self.structure = structure
         self.proc = proc
@@ -59,7 +59,7 @@ class _Outputs:
         """Record ``k`` simulated at one theta (optionally driven by another force) and
         processed the way ``refine`` does it (same interpolation, chain and substeps).
         Returns (processed states or None if diverged, the raw full-rate Simulation)."""
-        from .simulate import simulate, simulated_recording
+        from ..simulate import simulate, simulated_recording
 
         r = self.records[k]
         f = r.force if force is None else force

@@ -24,7 +24,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
              processing: Any = "auto", *, settings: DiagnoseSettings | None = None,
              progress: Progress | None = None) -> Diagnosis:
     """Locate and explain the sim-to-real gap of ``structure`` (see the module doc)."""
-    from .siva import choose_processing
+    from ..siva import choose_processing
 
     settings = settings or DiagnoseSettings()
     if not train or not val:

@@ -19,7 +19,7 @@ def synthetic_impacts(structure: Structure, theta: Any, peaks: Sequence[float], 
 
     Used by the tests and the benchmark to check the diagnosis on effects, magnitudes and
     seeds other than the shipped examples (``with_effect`` builds the generator)."""
-    from .simulate import simulate
+    from ..simulate import simulate
 
     rng = np.random.default_rng(seed)
     t = np.arange(int(round(duration * fs))) / fs
