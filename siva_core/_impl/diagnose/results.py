@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -48,17 +48,56 @@ class Candidate:
     ee_start: tuple[dict[str, float], dict[str, float]] | None = None  # joint equation-
     # error solution (nominal parameters, new coefficients): a fit start
     ee_shape: dict[str, float] = field(default_factory=dict)
+    names: dict[str, str] = field(default_factory=dict)   # coefficient -> new parameter
+    scan_cost: float = math.inf   # train cost at the best point of the magnitude scan
+    scan_theta: np.ndarray | None = None
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:
         return (self.effect.kind, self.loc.between)
 
+    @property
+    def category(self) -> str:
+        """"sensor" for a measurement fault, "structure" for a missing element."""
+        return "sensor" if self.effect.family == "sensor" else "structure"
+
     def label(self) -> str:
+        if self.category == "sensor":
+            return f"{self.effect.kind} {self.loc.between[0]}"
         return f"{self.effect.kind} {self.loc.between[0]}-{self.loc.between[1]}"
+
+    def correct(self, records: Sequence[Recording]) -> list[Recording]:
+        """The records this candidate's model is compared with (a sensor fault corrects
+        them; a structural candidate leaves them as measured)."""
+        if self.category != "sensor" or self.effect.magnitude not in self.coefficients:
+            return list(records)
+        from .sensors import corrected
+
+        return corrected(records, self.effect, self.loc.between[0],
+                         self.coefficients[self.effect.magnitude])
+
+    def verdict_json(self) -> dict[str, Any]:
+        """The verdict entry: what, where, how big (with 95 % interval and units), why."""
+        from .units import coefficient_units
+
+        out: dict[str, Any] = {
+            "category": self.category, "kind": self.effect.kind,
+            "between": [self.loc.between[0]] if self.category == "sensor"
+            else list(self.loc.between),
+            "effect": self.effect.name, "family": self.effect.family,
+            "closure": _num(self.closure), "coefficients": _clean(self.coefficients),
+            "intervals": {k: [_num(lo), _num(hi)] for k, (lo, hi) in self.intervals.items()},
+            "units": coefficient_units(self.effect, self.coefficients),
+            "explanation": self.effect.describe(self.coefficients)}
+        if self.category == "sensor":
+            out["channel"] = self.loc.between[0]
+        return out
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
-            "kind": self.effect.kind, "between": list(self.loc.between),
+            "category": self.category, "kind": self.effect.kind,
+            "between": list(self.loc.between),
             "gap_before": _num(self.gap_before), "gap_after": _num(self.gap_after),
             "closure": _num(self.closure), "effect": self.effect.name,
             "family": self.effect.family, "coefficients": _clean(self.coefficients),
@@ -76,6 +115,7 @@ class Diagnosis:
 
     verdict: Candidate | None
     ranking: list[Candidate]
+    verdicts: list[Candidate]
     screened: list[Candidate]
     where: dict[str, Any]
     nominal: dict[str, Any]
@@ -87,17 +127,14 @@ class Diagnosis:
     train: list[Recording]
     val: list[Recording]
     plots: dict[str, Any] = field(default_factory=dict, repr=False)  # HTML report data
+    signatures: dict[str, Any] = field(default_factory=dict)
+    stages: list[dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
-        v = None
-        if self.verdict is not None:
-            c = self.verdict
-            v = {"kind": c.effect.kind, "between": list(c.loc.between), "effect": c.effect.name,
-                 "family": c.effect.family, "closure": _num(c.closure),
-                 "coefficients": _clean(c.coefficients),
-                 "explanation": c.effect.describe(c.coefficients)}
+        v = self.verdict.verdict_json() if self.verdict is not None else None
         return {
             "verdict": v,
+            "verdicts": [c.verdict_json() for c in self.verdicts],
             "ranking": [c.to_json() for c in self.ranking],
             "where": self.where,
             "nominal": self.nominal,
@@ -111,6 +148,8 @@ class Diagnosis:
             else repr(self.processing),
             "records": {"train": [r.name for r in self.train], "val": [r.name for r in self.val]},
             "timing_s": {k: round(v, 3) for k, v in self.timing.items()},
+            "signatures": self.signatures,
+            "stages": self.stages,
         }
 
 

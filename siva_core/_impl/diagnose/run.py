@@ -1,28 +1,112 @@
-"""The diagnosis driver: nominal fit, screening, candidate fits, where, verdict."""
+"""The diagnosis driver: nominal fit, then stages of screening, magnitude scans and
+candidate fits (structural and sensor), each stage adding the effect it finds while that
+effect is significant on the validation records; then where and the signatures."""
 from __future__ import annotations
 
 import math
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..effects import EFFECTS
+from ..effects import EFFECTS, Effect
+from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .fitting import fit_candidate
-from .nominal import fit_nominal
+from .fitting import fit_candidate, scan_candidate
+from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
-from .results import Diagnosis, _num
-from .screening import _pick, ee_screen, screen
+from .results import Candidate, Diagnosis, _num
+from .screening import ee_screen, screen, select_for_fit
+from .sensors import fit_sensor, scan_sensor, sensor_candidates
 from .settings import DiagnoseSettings
+from .signatures import amplitude_signatures
 from .verdict import decide
 from .where import _explain, where_analysis
+
+Fraction = Callable[[float], None]
+
+
+def _gap(structure: Structure, theta: np.ndarray, val: Sequence[Recording],
+         proc: Processing) -> tuple[float, np.ndarray]:
+    outs = _Outputs(structure, val, proc, theta)
+    r = outs.residuals(theta)[0]
+    if not np.all(np.isfinite(r)):
+        return math.inf, np.full((len(val), structure.n_dof), np.inf)
+    return float(r @ r), outs.blocks(r)
+
+
+def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
+           val: Sequence[Recording], proc: Processing, effects: Sequence[Effect],
+           settings: DiagnoseSettings, gap_before: float, before_blocks: np.ndarray,
+           sensors: bool, progress: Progress | None, fraction: Callable[[float], None],
+           timing: dict[str, float], tag: str) -> list[Candidate]:
+    """One round: screen, scan every candidate's magnitude, fit the chosen ones, score
+    them on the validation records.  Returns the fitted candidates, best closure first."""
+    theta = fit.theta
+    t0 = time.perf_counter()
+    cands, nom = screen(structure, theta, train, proc, effects, progress)
+    ee_screen(structure, fit, train, cands)
+    timing[f"{tag}screening"] = time.perf_counter() - t0
+    fraction(0.15)
+    t0 = time.perf_counter()
+    chosen = select_for_fit(cands, settings)
+    for k, c in enumerate(chosen):
+        if c.admissible and c.estimate != 0:
+            continue  # the score test's estimate is a usable start (measured: better basin)
+        try:
+            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
+                           nom.force_scale, nom.jacobian, nom.basis)
+        except Exception as exc:  # noqa: BLE001 - one failed scan must not sink the run
+            c.note = f"scan failed: {exc}"
+        fraction(0.15 + 0.2 * (k + 1) / max(len(chosen), 1))
+    sens = sensor_candidates(structure, train) if sensors else []
+    for c in sens:
+        scan_sensor(c, structure, theta, train, proc)
+    timing[f"{tag}scan"] = time.perf_counter() - t0
+    _say(progress, "magnitude scan (train cost; nominal %.4g): " % fit.train_cost + ", ".join(
+        f"{c.label()} {c.scan_cost:.4g}" for c in sorted(
+            [*chosen, *sens], key=lambda c: c.scan_cost)[:8]))
+    best_sensor = min(sens, key=lambda c: c.scan_cost, default=None)
+    if best_sensor is not None and \
+            best_sensor.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
+        chosen.append(best_sensor)
+    t0 = time.perf_counter()
+    for k, c in enumerate(chosen):
+        try:
+            if c.category == "sensor":
+                fit_sensor(c, structure, theta, train, proc, settings)
+            else:
+                fit_candidate(c, structure, theta, train, proc,
+                              nom.amplitudes[c.loc.between], settings, nom.force_scale)
+        except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
+            c.note = f"fit failed: {exc}"
+            _say(progress, f"{c.label()}: fit failed ({exc})")
+            continue
+        c.gap_before = gap_before
+        c.gap_after, after_blocks = _gap(c.structure, c.theta, c.correct(val), proc)
+        c.closure = 1.0 - c.gap_after / gap_before if gap_before > 0 else 0.0
+        c.per_record = []
+        for j, rec in enumerate(val):
+            gb, ga = float(before_blocks[j].mean()), float(after_blocks[j].mean())
+            c.per_record.append({"record": rec.name, "gap_before": gb,
+                                 "gap_after": _num(ga),
+                                 "closure": _num(1 - ga / gb) if gb > 0 else None})
+        _say(progress, f"{c.label()}: closure {c.closure:.3f} (val gap {gap_before:.4g} -> "
+                       f"{c.gap_after:.4g}; {c.fit_time_s:.1f} s) "
+                       + ", ".join(f"{k}={v:.4g}" for k, v in c.coefficients.items()))
+        fraction(0.4 + 0.6 * (k + 1) / max(len(chosen), 1))
+    timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
+    fitted = [c for c in chosen if c.fitted]
+    stage_cands = cands + sens
+    ranking = sorted(fitted, key=lambda c: -c.closure if np.isfinite(c.closure) else math.inf)
+    return ranking, stage_cands
 
 
 def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Recording],
              processing: Any = "auto", *, settings: DiagnoseSettings | None = None,
-             progress: Progress | None = None) -> Diagnosis:
+             progress: Progress | None = None, fraction: Fraction | None = None
+             ) -> Diagnosis:
     """Locate and explain the sim-to-real gap of ``structure`` (see the module doc)."""
     from ..siva import choose_processing
 
@@ -49,43 +133,45 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown} (known: {', '.join(EFFECTS)})")
-    t0 = time.perf_counter()
-    cands, nom = screen(structure, theta, train, proc, [EFFECTS[n] for n in names], progress)
-    ee_screen(structure, nominal_fit, train, cands)
-    strong = sorted(cands, key=lambda c: -c.ee_score)[:3]
-    _say(progress, "equation-error screening: " + ", ".join(
-        f"{c.label()} {c.ee_score:.3f}" for c in strong))
-    timing["screening"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    chosen = _pick(cands, settings)
-    for c in chosen:
-        try:
-            fit_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
-                          settings, nom.force_scale)
-        except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
-            c.note = f"fit failed: {exc}"
-            _say(progress, f"{c.label()}: fit failed ({exc})")
-            continue
-        outs = _Outputs(c.structure, val, proc, c.theta)
-        r_after = outs.residuals(c.theta)[0]
-        c.gap_before = gap_before
-        c.gap_after = float(r_after @ r_after) if np.all(np.isfinite(r_after)) else math.inf
-        c.closure = 1.0 - c.gap_after / gap_before if gap_before > 0 else 0.0
-        after_blocks = outs.blocks(r_after) if np.all(np.isfinite(r_after)) else \
-            np.full_like(before_blocks, np.inf)
-        c.per_record = []
-        for k, rec in enumerate(val):
-            gb, ga = float(before_blocks[k].mean()), float(after_blocks[k].mean())
-            c.per_record.append({"record": rec.name, "gap_before": gb,
-                                 "gap_after": _num(ga),
-                                 "closure": _num(1 - ga / gb) if gb > 0 else None})
-        _say(progress, f"{c.label()}: closure {c.closure:.3f} (val gap {gap_before:.4g} -> "
-                       f"{c.gap_after:.4g}; {c.fit_time_s:.1f} s) "
-                       + ", ".join(f"{k}={v:.4g}" for k, v in c.coefficients.items()))
-    timing["candidate_fits"] = time.perf_counter() - t0
-    ranking = sorted([c for c in chosen if c.fitted],
-                     key=lambda c: -c.closure if np.isfinite(c.closure) else math.inf)
+    effects = [EFFECTS[n] for n in names]
+    report = fraction or (lambda _x: None)
+    report(0.2)
+    n_stages = max(1, settings.max_effects)
+    verdicts: list[Candidate] = []
+    stages: list[dict[str, Any]] = []
+    ranking: list[Candidate] = []
+    cands: list[Candidate] = []
+    rule: dict[str, Any] = {}
+    cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
+    cur_gap, cur_blocks = gap_before, before_blocks
+    for n in range(n_stages):
+        tag = "" if n == 0 else f"stage{n + 1}_"
+        lo, hi = 0.2 + 0.8 * n / n_stages, 0.2 + 0.8 * (n + 1) / n_stages
+        rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc, effects, settings,
+                        cur_gap, cur_blocks, settings.sensors and not any(
+                            v.category == "sensor" for v in verdicts),
+                        progress, lambda x: report(lo + (hi - lo) * x), timing, tag)
+        floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
+                                            if np.isfinite(c.train_cost)])
+        v, r = decide(rk, cur_gap, floor, settings)
+        stages.append({"gap_before": cur_gap, "rule": r,
+                       "ranking": [c.label() for c in rk],
+                       "verdict": v.label() if v is not None else None})
+        if n == 0:
+            ranking, cands, rule = rk, cs, r
+        if v is None:
+            break
+        verdicts.append(v)
+        _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
+                       f"{cur_gap:.4g}")
+        if v.gap_after <= settings.gap_min or n + 1 >= n_stages:
+            break
+        # the next stage starts from the model (or records) with this effect
+        cur_train, cur_val = v.correct(cur_train), v.correct(cur_val)
+        cur_struct = v.structure
+        cur_fit = NominalFit(v.theta, v.train_cost, f"with {v.label()}")
+        cur_gap, cur_blocks = _gap(cur_struct, v.theta, cur_val, proc)
+    report(0.97)
 
     t0 = time.perf_counter()
     best = ranking[0] if ranking else None
@@ -97,7 +183,12 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     fits = [train_cost] + [c.train_cost for c in ranking if np.isfinite(c.train_cost)]
     where["noise_floor"] = float(min([psd_floor, *fits] if psd_floor is not None else fits))
     where["noise_floor_spectral"] = psd_floor
-    verdict, rule = decide(ranking, gap_before, where["noise_floor"], settings)
+    verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings)
+    rule = {**rule, **rule0}
+    if verdict is None:
+        verdicts = []
+    elif verdicts and verdicts[0] is not verdict:
+        verdicts = [verdict]
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
             f" No candidate is named: {rule['reason']}."
@@ -108,5 +199,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                "gap": gap_before, "start": start,
                "gap_per_record": {rec.name: float(before_blocks[k].mean())
                                   for k, rec in enumerate(val)}}
-    return Diagnosis(verdict, ranking, cands, where, nominal, rule, proc, timing, structure,
-                     theta, list(train), list(val), plots)
+    signatures = amplitude_signatures(structure, theta, val, proc, verdicts[0] if verdicts
+                                      else best)
+    report(1.0)
+    return Diagnosis(verdict, ranking, verdicts, cands, where, nominal, rule, proc, timing,
+                     structure, theta, list(train), list(val), plots, signatures, stages)

@@ -28,6 +28,8 @@ class _Nominal:
     raw: list[Any]
     amplitudes: dict[tuple[str, str], Amplitudes]
     force_scale: float
+    jacobian: np.ndarray | None = None   # d residual / d nominal theta (train records)
+    basis: np.ndarray | None = None      # orthonormal basis of its column space
 
 
 def _nominal_context(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
@@ -76,6 +78,7 @@ def screen(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
     U, s, _ = np.linalg.svd(Jn, full_matrices=False)
     U = U[:, s > 1e-8 * s.max()] if s.size and s.max() > 0 else U[:, :0]
     r_perp = r - U @ (U.T @ r)
+    nom.jacobian, nom.basis = J, U
     gains = _gain_values(structure, theta)
     masses = structure.masses
 
@@ -254,26 +257,45 @@ def _representable(structure: Structure, theta: np.ndarray, raw: Sequence[Any], 
     return ", ".join(sorted({el.kind.name for el in here})) if r2 >= REDUNDANT_R2 else ""
 
 
-def _pick(cands: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candidate]:
-    """The top_k admissible candidates, at most max_per_kind of a kind, and always at least
-    one of a second kind (the verdict needs a rival to compare with)."""
+def select_for_fit(cands: Sequence[Candidate], settings: DiagnoseSettings
+                   ) -> list[Candidate]:
+    """Which screened candidates the magnitude scan and the local fit get.
+
+    The best location of every family (by output- or equation-error score) whose score is
+    at least ``settings.family_keep`` of the leading family's: a look-alike law that could
+    still win after the joint fit is never dropped at screening; at most ``settings.top_k``
+    families, plus the runner-up location of the two leading families (the place can be
+    confused too) and the strongest equation-error candidate."""
+    def strength(c: Candidate) -> float:
+        return max(c.score if c.admissible else 0.0, c.ee_score)
+
+    ranked = sorted((c for c in scan_targets(cands) if strength(c) > 0), key=strength,
+                    reverse=True)
+    if not ranked:
+        return []
+    top = strength(ranked[0])
     chosen: list[Candidate] = []
-    per_kind: dict[str, int] = {}
-    for c in cands:
-        if not c.admissible or c.score <= 0:
+    kinds: list[str] = []
+    for c in ranked:
+        if c.effect.kind in kinds or strength(c) < settings.family_keep * top:
             continue
-        if len(chosen) >= settings.top_k:
-            break
-        if per_kind.get(c.effect.kind, 0) >= settings.max_per_kind:
-            continue
+        kinds.append(c.effect.kind)
         chosen.append(c)
-        per_kind[c.effect.kind] = per_kind.get(c.effect.kind, 0) + 1
-    if len(per_kind) == 1:
-        for c in cands:
-            if c.admissible and c.score > 0 and c.effect.kind not in per_kind:
-                chosen.append(c)
-                break
+    chosen = chosen[:settings.top_k]
+    for kind in [c.effect.kind for c in chosen[:2]]:
+        second = [c for c in ranked if c.effect.kind == kind and c not in chosen]
+        if second and strength(second[0]) >= settings.family_keep * top:
+            chosen.append(second[0])
     strong = max(cands, key=lambda c: c.ee_score, default=None)
     if strong is not None and strong.ee_score >= settings.ee_strong and strong not in chosen:
         chosen.append(strong)
     return chosen
+
+
+def scan_targets(cands: Sequence[Candidate]) -> list[Candidate]:
+    """Every candidate the coarse magnitude scan visits: all but those the model already
+    represents or whose sensitivity run diverged (an inadmissible screening sign does not
+    exclude a candidate: the linearisation at zero magnitude can get the sign wrong when
+    the effect is strong)."""
+    return [c for c in cands if "already represents" not in c.note
+            and "diverged" not in c.note]

@@ -25,11 +25,18 @@ class DiagnoseSettings:
     ee_strong: a candidate explaining at least this share of the equation-error residual
         is fitted too, whatever its output-error score (strong effects such as a clearance
         can keep the nominal output-error fit so far off that its linearisation misleads).
+    family_keep: a family goes to the scan and the local fit when its best screening score
+        is at least this share of the leading family's (look-alikes are fitted side by side).
+    sensor_gain: the best sensor fault is fitted when correcting the records by its scanned
+        value lowers the nominal train cost by at least this share.
+    max_effects: most effects named at once (added greedily while each one is significant
+        on the validation records).
+    sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
     effects: names of the effects to try (default: all registered).
     nominal_start: initial values of the nominal parameters (skips the least-squares start).
     """
 
-    top_k: int = 3
+    top_k: int = 4
     max_per_kind: int = 2
     nominal_nfev: int = 40
     fit_nfev: int = 40
@@ -39,5 +46,9 @@ class DiagnoseSettings:
     noise_factor: float = 2.0
     gap_min: float = 0.005
     ee_strong: float = 0.25
+    family_keep: float = 0.1
+    sensor_gain: float = 0.2
+    max_effects: int = 2
+    sensors: bool = True
     effects: Sequence[str] | None = None
     nominal_start: Mapping[str, float] | None = None

@@ -53,7 +53,7 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
     Returns (where-json, plot data for the HTML report).
     """
     outs = _Outputs(structure, records, proc, theta_nom)
-    alt = _Outputs(best.structure, records, proc, best.theta) if best is not None and \
+    alt = _Outputs(best.structure, best.correct(records), proc, best.theta) if best is not None and \
         best.structure is not None else None
     dofs = structure.dofs
     modes = structure.linear_modes(theta_nom)["frequency_hz"]

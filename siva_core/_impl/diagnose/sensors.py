@@ -1,0 +1,168 @@
+"""Sensor-side candidates: the measurement, not the structure, is wrong.
+
+An accelerometer whose gain is off, a channel delayed against the others (an anti-aliasing
+filter or a buffer offset on one input), a force transducer with the wrong sensitivity.
+The nominal model cannot absorb these (the masses are known, the mode shapes and phases fix
+the rest), so they leave a gap of their own.  Each fault has one value; a candidate is
+*corrected records* (what the sensor would have given without the fault) on which the
+nominal model is re-fitted: if that closes the gap, the verdict is "sensor".
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..processing import Processing
+from ..recording import Recording
+from ..structure import Structure
+from .results import Candidate, Location
+from .settings import DiagnoseSettings
+
+#: gain errors scanned (measured / true); a sensitivity off by more than 2x is a wiring fault
+GAINS = tuple(float(x) for x in np.exp(np.linspace(np.log(0.7), np.log(1.4), 7)))
+#: channel delays scanned, in samples of the record (both signs)
+DELAY_SAMPLES = (-4.0, -2.0, -1.0, 1.0, 2.0, 4.0)
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """One sensor fault on one channel (quacks like an ``Effect`` for the ranking)."""
+
+    name: str
+    kind: str
+    explanation: str
+    magnitude: str
+    unit: str
+    family: str = "sensor"
+    positive: frozenset[str] = frozenset()
+
+    def describe(self, coeffs: dict[str, float]) -> str:
+        v = coeffs.get(self.magnitude)
+        if v is None:
+            return self.explanation
+        if self.magnitude == "gain":
+            return f"{self.explanation} Identified gain {v:.4g} ({100 * (v - 1):+.1f} %)."
+        return f"{self.explanation} Identified delay {1e3 * v:.4g} ms."
+
+    def grid(self, fs: float) -> list[float]:
+        return list(GAINS) if self.magnitude == "gain" else [s / fs for s in DELAY_SAMPLES]
+
+
+ACC_GAIN = SensorFault(
+    "accelerometer_gain", "accelerometer_gain",
+    "an accelerometer's sensitivity is off: its channel is scaled by a constant factor on "
+    "every record, which no structural parameter reproduces at every mode alike "
+    "(with known masses).", "gain", "-")
+CHANNEL_DELAY = SensorFault(
+    "channel_delay", "channel_delay",
+    "one channel lags the others by a constant time (a filter or buffer offset on that "
+    "input): a phase error growing in proportion to frequency, on every record alike.",
+    "delay", "s")
+FORCE_GAIN = SensorFault(
+    "force_gain", "force_gain",
+    "the force transducer's sensitivity is off: every response is scaled against the "
+    "measured force by the same factor, which no stiffness or damping can mimic when the "
+    "masses are known.", "gain", "-")
+
+SENSOR_FAULTS = {f.name: f for f in (ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN)}
+
+
+def corrected(records: Sequence[Recording], fault: SensorFault, channel: str,
+              value: float) -> list[Recording]:
+    """The records as a sensor without the fault would have given them."""
+    out = []
+    for r in records:
+        if channel not in r.channels:
+            out.append(r)
+            continue
+        x = np.asarray(r.channels[channel], float)
+        if fault.magnitude == "gain":
+            y = x / value
+        else:  # measured(t) = true(t - delay)  ->  true(t) = measured(t + delay)
+            y = np.interp(r.time + value, r.time, x)
+        out.append(dataclasses.replace(r, channels={**r.channels, channel: y}))
+    return out
+
+
+def sensor_candidates(structure: Structure, records: Sequence[Recording]) -> list[Candidate]:
+    """Every fault on every channel the records carry: gain and delay of each
+    accelerometer (or whichever response channel is measured), gain of each force."""
+    chans = records[0].channels
+    out = []
+    for i, dof in enumerate(structure.dofs):
+        for q in ("acc", "vel", "disp"):
+            ch = f"{q}_{dof}"
+            if ch in chans:
+                out.append(Candidate(ACC_GAIN, Location(i, -1, (ch, "sensor")), {}))
+                out.append(Candidate(CHANNEL_DELAY, Location(i, -1, (ch, "sensor")), {}))
+                break
+        if f"force_{dof}" in chans and np.any(np.asarray(chans[f"force_{dof}"]) != 0):
+            out.append(Candidate(FORCE_GAIN, Location(i, -1, (f"force_{dof}", "sensor")), {}))
+    return out
+
+
+def scan_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
+                train: Sequence[Recording], proc: Processing) -> None:
+    """Train cost of the nominal parameters on the corrected records over the fault's grid
+    (in place: ``scan_cost``, the best value in ``coefficients``)."""
+    from ..refine import output_error
+
+    fault, ch = c.effect, c.loc.between[0]
+    best, best_v = math.inf, None
+    for v in fault.grid(min(r.fs for r in train)):
+        try:
+            cost = float(output_error(structure, theta_nom[None],
+                                      corrected(train, fault, ch, v), proc)[0])
+        except Exception:  # noqa: BLE001 - a value the chain cannot process is skipped
+            continue
+        if np.isfinite(cost) and cost < best:
+            best, best_v = cost, v
+    c.scan_cost = best
+    c.structure = structure
+    if best_v is not None:
+        c.coefficients = {fault.magnitude: best_v}
+
+
+def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
+               train: Sequence[Recording], proc: Processing,
+               settings: DiagnoseSettings) -> None:
+    """Re-fit the nominal model on corrected records, then the fault's value by a parabola
+    through three costs around the scan's best (log-gain / delay), then the model again."""
+    from ..refine import output_error, refine
+
+    t0 = time.perf_counter()
+    fault, ch = c.effect, c.loc.between[0]
+    v0 = c.coefficients[fault.magnitude]
+    res = refine(structure, theta_nom, corrected(train, fault, ch, v0), proc,
+                 max_nfev=max(10, settings.fit_nfev // 2))
+    theta = res.theta
+    fs = min(r.fs for r in train)
+    step = 0.05 if fault.magnitude == "gain" else 0.5 / fs
+    to_v = (lambda x: v0 * math.exp(x)) if fault.magnitude == "gain" else (lambda x: v0 + x)
+    xs = np.array([-step, 0.0, step])
+    costs = np.array([float(output_error(structure, theta[None],
+                                         corrected(train, fault, ch, to_v(x)), proc)[0])
+                      for x in xs])
+    a, b, _ = np.polyfit(xs, costs, 2)
+    x_best = float(np.clip(-b / (2 * a), -3 * step, 3 * step)) if a > 0 else \
+        float(xs[int(np.argmin(costs))])
+    value = to_v(x_best)
+    res = refine(structure, theta, corrected(train, fault, ch, value), proc,
+                 max_nfev=settings.fit_nfev)
+    c.theta = res.theta
+    c.coefficients = {fault.magnitude: value}
+    c.parameters = structure.as_dict(res.theta)
+    c.train_cost = float(output_error(structure, res.theta[None],
+                                      corrected(train, fault, ch, value), proc)[0])
+    if a > 0:  # curvature of the cost in the fault's value -> a rough 95 % interval
+        n = sum(len(r) for r in train)
+        sd = math.sqrt(max(2 * c.train_cost / max(n, 1) / (2 * a), 0.0))
+        lo, hi = to_v(x_best - 1.96 * sd), to_v(x_best + 1.96 * sd)
+        c.intervals = {fault.magnitude: (min(lo, hi), max(lo, hi))}
+    c.fitted = True
+    c.fit_time_s = time.perf_counter() - t0
