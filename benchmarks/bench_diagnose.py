@@ -20,6 +20,7 @@ Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--json FILE]``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -40,11 +41,29 @@ MODEL = ROOT / "examples" / "models" / "lono.toml"
 
 SYNTHETIC = {
     "syn_quadratic_damper_LO_ground": ("quadratic_damper", ("LO", "ground"), {"c2": 4.0}),
+    "syn_quadratic_damper_LO_NO": ("quadratic_damper", ("LO", "NO"), {"c2": 2.0}),
+    "syn_cubic_damper_NO_ground": ("cubic_damper", ("NO", "ground"), {"c3": 1.0e4}),
+    "syn_coulomb_LO_NO": ("coulomb", ("LO", "NO"), {"fc": 0.3}),
+    "syn_coulomb_LO_ground": ("coulomb", ("LO", "ground"), {"fc": 0.15}),
+    "syn_damper_NO_ground": ("damper", ("NO", "ground"), {"c": 1.0}),
     "syn_clearance_LO_ground": ("clearance", ("LO", "ground"), {"k": 2.0e4, "gap": 2.0e-3}),
     "syn_cubic_spring_NO_ground": ("cubic_spring", ("NO", "ground"), {"k3": -3.0e6}),
+    "syn_cubic_spring_NO_ground_hard": ("cubic_spring", ("NO", "ground"), {"k3": 2.0e7}),
+    "syn_quadratic_spring_LO_NO": ("quadratic_spring", ("LO", "NO"), {"k2": 1.6e5}),
 }
-CASES = ["coulomb_NO_ground", "cubic_damper_LO_NO", "null_lono", *SYNTHETIC,
-         "duffing_without_cubic_damper"]
+#: two effects at once: both elements in the generator
+TWO_EFFECTS = {
+    "syn2_coulomb_NO_ground+quadratic_damper_LO_ground": [
+        ("coulomb", ("NO", "ground"), {"fc": 0.2}),
+        ("quadratic_damper", ("LO", "ground"), {"c2": 3.0})],
+}
+#: sensor faults on the nominal generator: (fault kind, channel, value = measured/true)
+SENSOR = {
+    "sensor_accelerometer_gain_LO": ("accelerometer_gain", "acc_LO", 0.85),
+    "sensor_force_gain_NO": ("force_gain", "force_NO", 1.15),
+}
+CASES = ["coulomb_NO_ground", "cubic_damper_LO_NO", "null_lono", *SYNTHETIC, *TWO_EFFECTS,
+         *SENSOR, "duffing_without_cubic_damper"]
 
 
 def duffing_without_cubic_damper() -> Structure:
@@ -61,25 +80,44 @@ def load_case(name: str, structure: Structure) -> tuple[list[Recording], list[Re
         folder = DATA / "duffing"
         train = [Recording.read(folder / "train_v5.csv", dofs)]
         val = [Recording.read(folder / f, dofs) for f in ("val_v3.csv", "val_v8.csv")]
-        return train, val, ("cubic_damper", ("x", "ground"))
+        return train, val, [("cubic_damper", ("x", "ground"))]
     if name in ("coulomb_NO_ground", "cubic_damper_LO_NO"):
         folder = DATA / "gap_examples" / name
         train = [Recording.read(folder / f"impact_{a}N.csv", dofs) for a in (250, 530)]
         val = [Recording.read(folder / f"impact_{a}N.csv", dofs) for a in (37, 899)]
         eff = json.loads((folder / "effect.json").read_text())["effect"]
-        return train, val, (eff["kind"], tuple(eff["between"]))
+        return train, val, [(eff["kind"], tuple(eff["between"]))]
     if name == "null_lono":
         folder = DATA / "lono"
         train = [Recording.read(folder / "impact_530N.csv", dofs)]
         val = [Recording.read(folder / f"impact_{a}N.csv", dofs) for a in (37, 899)]
-        return train, val, None
-    kind, between, coeffs = SYNTHETIC[name]
+        return train, val, []
     truth = json.loads((DATA / "lono" / "truth.json").read_text())["truth"]
-    gen = with_effect(structure, kind, between, coeffs)
+    if name in SENSOR:
+        fault, channel, value = SENSOR[name]
+        theta = structure.vector(truth)
+        train = synthetic_impacts(structure, theta, [150.0, 450.0], dof="NO", seed=11)
+        val = synthetic_impacts(structure, theta, [50.0, 800.0], dof="NO", seed=12)
+        faulty = [dataclasses.replace(r, channels={**r.channels,
+                                                   channel: r.channels[channel] * value})
+                  for r in [*train, *val]]
+        return faulty[:2], faulty[2:], [(fault, (channel,))]
+    elements = TWO_EFFECTS.get(name) or [SYNTHETIC[name]]
+    gen = structure
+    for kind, between, coeffs in elements:
+        gen = with_effect(gen, kind, between, coeffs)
     theta = gen.vector(truth)
     train = synthetic_impacts(gen, theta, [150.0, 450.0], dof="NO", seed=11)
     val = synthetic_impacts(gen, theta, [50.0, 800.0], dof="NO", seed=12)
-    return train, val, (kind, tuple(between))
+    return train, val, [(k, tuple(b)) for k, b, _ in elements]
+
+
+def truth_of(name: str) -> list[dict[str, float]]:
+    """The generator's coefficients of each expected effect (size recovery)."""
+    if name in SENSOR:
+        return [{"gain": SENSOR[name][2]}]
+    return [c for _, _, c in (TWO_EFFECTS.get(name) or [SYNTHETIC[name]])] \
+        if name in SYNTHETIC or name in TWO_EFFECTS else []
 
 
 def run(name: str, quiet: bool = True) -> dict[str, Any]:
@@ -93,19 +131,28 @@ def run(name: str, quiet: bool = True) -> dict[str, Any]:
                         progress=None if quiet else (lambda m: print("   ", m, flush=True)))
     elapsed = time.perf_counter() - t0
     out = diag.to_json()
-    v = out["verdict"]
-    got = (v["kind"], tuple(v["between"])) if v else None
-    top = out["ranking"][0] if out["ranking"] else None
+    got = [(v["kind"], tuple(v["between"])) for v in out["verdicts"]]
     shown = diag.verdict or (diag.ranking[0] if diag.ranking else None)
+    truths = truth_of(name)
+    sizes = []
+    for (kind, where), coeffs in zip(expected, truths):
+        v = next((v for v in out["verdicts"] if (v["kind"], tuple(v["between"])) == (kind, where)),
+                 None)
+        if v is not None:
+            sizes += [v["coefficients"][k] / x for k, x in coeffs.items()
+                      if k in v["coefficients"] and v["coefficients"][k] is not None and k != "gap"]
+    fmt = lambda e: " + ".join(f"{k} {'-'.join(b)}" for k, b in e) or None  # noqa: E731
     return {
         "case": name,
-        "expected": None if expected is None else f"{expected[0]} {'-'.join(expected[1])}",
-        "verdict": None if got is None else f"{got[0]} {'-'.join(got[1])}",
-        "correct": got == expected,
+        "expected": fmt(expected),
+        "verdict": fmt(got),
+        "correct": sorted(got) == sorted(expected),
+        "first_right": (got[:1] == expected[:1]) if expected else not got,
+        "size_ratio": sizes,
         "closure": None if shown is None else shown.closure,
         "gap_before": out["nominal"]["gap"],
         "gap_after": None if shown is None else shown.gap_after,
-        "coefficients": None if top is None else (v or top)["coefficients"],
+        "coefficients": [v["coefficients"] for v in out["verdicts"]],
         "reason": out["rule"].get("reason"),
         "time_s": elapsed,
         "timing_s": out["timing_s"],
@@ -119,7 +166,7 @@ def main() -> int:
     ap.add_argument("--verbose", action="store_true", help="progress of each diagnosis")
     args = ap.parse_args()
     rows = []
-    head = (f"{'case':32s} {'expected':24s} {'verdict':24s} ok  {'closure':>8s} "
+    head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
             f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s}")
     print(head)
     for name in args.cases.split(","):
@@ -127,6 +174,7 @@ def main() -> int:
         rows.append(row)
         fmt = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
         print(f"{row['case']:32s} {str(row['expected']):24s} {str(row['verdict']):24s} "
+              f"{' '.join(f'{x:.3f}' for x in row['size_ratio']) or '-':12s} "
               f"{'yes' if row['correct'] else 'NO ':3s} {fmt(row['closure']):>8s} "
               f"{fmt(row['gap_before']):>10s} {fmt(row['gap_after']):>10s} "
               f"{row['time_s']:7.1f}", flush=True)

@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("diagnose", help="locate and explain the sim-to-real gap")
     _common_fit_args(p)
     p.add_argument("--html", metavar="FILE", help="also write an HTML report")
+    p.add_argument("--write-model", metavar="FILE",
+                   help="write the model with the identified effect(s) as a TOML spec")
 
     p = sub.add_parser("serve", help="run the streaming identification service")
     p.add_argument("--host", default="127.0.0.1")

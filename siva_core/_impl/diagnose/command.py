@@ -8,13 +8,15 @@ from pathlib import Path
 
 from ..recording import Recording
 from ..structure import Structure
+from .model_spec import write_model
 from .outputs import _say
 from .report import html_report
 from .run import diagnose
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
-    """`siva diagnose MODEL --train CSV... --val CSV... [--out FILE] [--html FILE]`."""
+    """`siva diagnose MODEL --train CSV... --val CSV... [--out FILE] [--html FILE]
+    [--write-model FILE]`."""
     structure = Structure.from_file(args.model)
     train = [Recording.read(p, structure.dofs) for p in args.train]
     val = [Recording.read(p, structure.dofs) for p in args.val]
@@ -26,6 +28,12 @@ def diagnose_command(args: argparse.Namespace) -> int:
         Path(args.out).write_text(text + "\n")
     else:
         sys.stdout.write(text + "\n")
+    if getattr(args, "write_model", None):
+        if any(c.category == "structure" for c in diag.verdicts):
+            Path(args.write_model).write_text(write_model(diag))
+            _say(progress, f"augmented model: {args.write_model}")
+        else:
+            _say(progress, "no structural effect named: --write-model wrote nothing")
     if getattr(args, "html", None):
         Path(args.html).write_text(html_report(diag))
         _say(progress, f"report: {args.html}")

@@ -93,7 +93,6 @@ def scan_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     their column space: the nominal fit has absorbed part of the effect, e.g. a missing
     damper into the existing dampers, so at fixed nominal parameters the true magnitude
     looks worse than none) and the start gets that Gauss-Newton step too."""
-    from .outputs import _Outputs
 
     eff = c.effect
     floor = eff.typical_magnitude(amp, c.shape, force_scale)

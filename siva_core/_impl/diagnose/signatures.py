@@ -48,10 +48,13 @@ def _mode_track(x: np.ndarray, fs: float, f0: float) -> tuple[np.ndarray, ...] |
     return env[sl], f_inst[sl], zeta[sl]
 
 
-def _binned(tracks: Sequence[tuple[np.ndarray, ...]], edges: np.ndarray) -> dict[str, list]:
+def _binned(tracks: Sequence[tuple[np.ndarray, ...]], edges: np.ndarray,
+            f0: float) -> dict[str, list]:
     env = np.concatenate([t[0] for t in tracks])
     f = np.concatenate([t[1] for t in tracks])
     z = np.concatenate([t[2] for t in tracks])
+    ok = np.abs(f - f0) < 0.3 * f0  # where the band holds the mode, not noise or a stop
+    env, f, z = env[ok], f[ok], z[ok]
     out: dict[str, list] = {"amplitude": [], "frequency_hz": [], "damping_ratio": []}
     for a, b in zip(edges[:-1], edges[1:]):
         m = (env >= a) & (env < b)
@@ -69,9 +72,10 @@ def _slope(curve: dict[str, list], key: str, log_y: bool) -> float | None:
     if len(a) < 3:
         return None
     if log_y:
-        if np.any(y <= 0):
+        keep = y > 0
+        if keep.sum() < 3:
             return None
-        return float(np.polyfit(np.log(a), np.log(y), 1)[0])
+        return float(np.polyfit(np.log(a[keep]), np.log(y[keep]), 1)[0])
     return float((y[-1] - y[0]) / max(abs(np.mean(y)), 1e-12))
 
 
@@ -131,7 +135,7 @@ def amplitude_signatures(structure: Structure, theta: np.ndarray, val: Sequence[
         if not tracks_meas:
             continue
         env = np.concatenate([t[0] for t in tracks_meas])
-        lo, hi = np.percentile(env, [10, 99])
+        lo, hi = np.percentile(env, [30, 99])  # the low tail is noise
         if not (hi > lo > 0):
             continue
         edges = np.geomspace(lo, hi, N_BINS + 1)
@@ -139,7 +143,7 @@ def amplitude_signatures(structure: Structure, theta: np.ndarray, val: Sequence[
             tracks = [t for y, fs, _ in recs if (t := _mode_track(y[:, d], fs, f0))]
             if not tracks:
                 continue
-            curve = _binned(tracks, edges)
+            curve = _binned(tracks, edges, f0)
             curve["damping_exponent"] = _slope(curve, "damping_ratio", log_y=True)
             curve["frequency_shift"] = _slope(curve, "frequency_hz", log_y=False)
             curve["even_harmonics"] = float(np.nanmean(
