@@ -295,6 +295,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     from .routes import router
 
     app.include_router(router)
+    from .routes_diagnosis import router as diagnosis_router  # noqa: E402
+
+    app.include_router(diagnosis_router)
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError) -> JSONResponse:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import warnings
 from pathlib import Path
@@ -25,10 +26,8 @@ from siva_core._impl.elements import REGISTRY
 from siva_core._impl.structure import Structure
 from siva_core._impl.recording import Recording
 
-from conftest import find_shared_data
-
 ROOT = Path(__file__).resolve().parents[1]
-DATA = find_shared_data() or ROOT.parent / "shared" / "data"
+DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MODEL = ROOT / "examples" / "models" / "lono.toml"
 GAPS = DATA / "gap_examples"
 

@@ -1,0 +1,67 @@
+"""GET /v1/systems/{name}/diagnosis against a real server: progress while it runs in the
+background, the result when done, cached until the records change, 409 without data."""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from synthetic import free_decay
+
+
+def _decay(v0: float, n: int = 3000, fs: float = 1000.0) -> bytes:
+    return free_decay(v0, n, fs, m=0.05, k=300.0, c=0.3).to_csv().encode()
+
+
+def _poll(client: Any, path: str, timeout: float) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    body: dict[str, Any] = {}
+    seen_running = False
+    while time.monotonic() < deadline:
+        r = client.get(path)
+        assert r.status_code in (200, 202), r.text
+        body = r.json()
+        if body["state"] == "running":
+            seen_running = True
+            assert r.status_code == 202 and 0.0 <= body["fraction"] < 1.0
+        else:
+            body["_seen_running"] = seen_running
+            return body
+        time.sleep(0.5)
+    raise AssertionError(f"diagnosis did not finish in {timeout} s: {body}")
+
+
+def test_diagnosis_runs_in_background_and_is_cached(client, linear):
+    name = "diag-lin"
+    assert client.put(f"/v1/systems/{name}", json=linear).status_code in (200, 201)
+    path = f"/v1/systems/{name}/diagnosis?quick=true"
+    r = client.get(path)
+    assert r.status_code == 409 and "train" in r.json()["detail"]
+    for v0, role in ((1.0, "train"), (0.6, "validation")):
+        assert client.post(f"/v1/systems/{name}/recordings?role={role}",
+                           content=_decay(v0), headers={"Content-Type": "text/csv"}
+                           ).status_code == 202
+    first = client.get(path)
+    assert first.status_code == 202, first.text  # started, not run in the request
+    assert first.json()["state"] == "running"
+    done = _poll(client, path, timeout=240)
+    assert done["state"] == "done", done
+    assert done["fraction"] == 1.0 and done["result"] is not None
+    # the records come from a linear oscillator = the model: nothing is named
+    assert done["result"]["verdicts"] == [] and done["result"]["verdict"] is None
+    key = done["data_key"]
+    again = client.get(path)
+    assert again.status_code == 200 and again.json()["data_key"] == key  # cached
+    report = client.get(f"/v1/systems/{name}/diagnosis/report?quick=true")
+    assert report.status_code == 200 and "<html" in report.text
+    # new data -> new key and a new run
+    assert client.post(f"/v1/systems/{name}/recordings?role=train", content=_decay(0.8),
+                       headers={"Content-Type": "text/csv"}).status_code == 202
+    fresh = client.get(path)
+    assert fresh.json()["data_key"] != key
+    assert fresh.json()["state"] in ("running", "done")
+
+
+def test_diagnosis_of_unknown_system_is_404(client):
+    r = client.get("/v1/systems/nope-diag/diagnosis")
+    assert r.status_code == 404 and "nope-diag" in r.json()["detail"]
+
