@@ -217,11 +217,12 @@ def _png_count(html: str) -> int:
 
 
 def _check_contract_shape(out: dict) -> None:
-    assert set(out) >= {"verdict", "ranking", "where"}
+    assert set(out) >= {"verdict", "verdicts", "ranking", "where", "signatures"}
+    assert out["verdict"] == (out["verdicts"][0] if out["verdicts"] else None)
     for c in out["ranking"]:
         assert set(c) >= {"kind", "between", "gap_before", "gap_after", "closure",
                           "coefficients", "parameters"}
-        assert c["kind"] in REGISTRY and len(c["between"]) == 2
+        assert (c["kind"] in REGISTRY or c["category"] == "sensor") and len(c["between"]) == 2
         if c["closure"] is not None:
             assert math.isclose(c["closure"], 1 - c["gap_after"] / c["gap_before"], rel_tol=1e-9)
     assert set(out["where"]) >= {"per_dof", "per_record", "decay", "frequency_bands",
@@ -253,7 +254,9 @@ def test_real_coulomb_example_fast(lono, tmp_path):
     decay = out["where"]["decay"]
     assert decay["late"] > decay["early"]
     html = html_report(diag)
-    assert _png_count(html) == 3 and "coulomb" in html
+    assert _png_count(html) >= 4 and "coulomb" in html
+    assert "[[elements]]" in html and "fc = " in html and " N" in html  # block with units
+    assert '{"' not in html  # no raw JSON dump
 
 
 @pytest.mark.skipif(not (DATA / "duffing").is_dir(), reason="shared reference data not available")
@@ -353,7 +356,7 @@ def test_cli_writes_json_and_html(tmp_path):
     assert data["verdict"] is not None
     assert (data["verdict"]["kind"], data["verdict"]["between"]) == (kind, between)
     text = html.read_text()
-    assert _png_count(text) == 3 and "<script" not in text
+    assert _png_count(text) >= 4 and "<script" not in text
 
 
 def test_cli_refuses_a_bad_record(tmp_path, capsys):
