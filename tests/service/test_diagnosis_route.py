@@ -8,7 +8,7 @@ from typing import Any
 from synthetic import free_decay
 
 
-def _decay(v0: float, n: int = 3000, fs: float = 1000.0) -> bytes:
+def _decay(v0: float, n: int = 1500, fs: float = 1000.0) -> bytes:
     return free_decay(v0, n, fs, m=0.05, k=300.0, c=0.3).to_csv().encode()
 
 
