@@ -7,10 +7,12 @@ fewer candidates fitted) so that it stays fast; the full cases of docs/diagnosis
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import re
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -21,6 +23,7 @@ from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, _am
                                       _bands, _energy_windows, augmented, candidate_sites,
                                       decide, diagnose, html_report, synthetic_impacts,
                                       with_effect)
+from siva_core._impl.diagnose.model_spec import write_model
 from siva_core._impl.effects import EFFECTS, Effect, register_effect
 from siva_core._impl.elements import REGISTRY
 from siva_core._impl.structure import Structure
@@ -340,15 +343,59 @@ def test_synthetic_other_effects(lono, truth, kind, between, coeffs):
 
 @needs_data
 @pytest.mark.slow
+@pytest.mark.parametrize("fault,channel,value", [("accelerometer_gain", "acc_LO", 0.85),
+                                                 ("force_gain", "force_NO", 1.15)])
+def test_sensor_fault_is_named_as_sensor(lono, truth, fault, channel, value):
+    """Records of the nominal model itself with one faulty sensor: the verdict is the
+    sensor (category, channel and value), not a structural element."""
+    theta = lono.vector(truth)
+    recs = [*synthetic_impacts(lono, theta, [150.0, 450.0], dof="NO", seed=11),
+            *synthetic_impacts(lono, theta, [50.0, 800.0], dof="NO", seed=12)]
+    recs = [dataclasses.replace(r, channels={**r.channels, channel: r.channels[channel] * value})
+            for r in recs]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = diagnose(lono, recs[:2], recs[2:], "auto").to_json()
+    _check_contract_shape(out)
+    v = out["verdict"]
+    assert v is not None, out["rule"]
+    assert (v["category"], v["kind"], v["channel"]) == ("sensor", fault, channel)
+    assert v["coefficients"]["gain"] == pytest.approx(value, rel=0.03)
+
+
+@needs_data
+@pytest.mark.slow
+def test_two_effects_at_once(lono, truth, tmp_path):
+    """Dry friction NO-ground and a velocity-squared damper LO-ground together: both are
+    named (verdicts), and --write-model's spec holds both elements."""
+    gen = with_effect(with_effect(lono, "coulomb", ("NO", "ground"), {"fc": 0.2}),
+                      "quadratic_damper", ("LO", "ground"), {"c2": 3.0})
+    theta = gen.vector(truth)
+    train = synthetic_impacts(gen, theta, [150.0, 450.0], dof="NO", seed=11)
+    val = synthetic_impacts(gen, theta, [50.0, 800.0], dof="NO", seed=12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        diag = diagnose(lono, train, val, "auto")
+    out = diag.to_json()
+    _check_contract_shape(out)
+    got = {(v["kind"], tuple(v["between"])) for v in out["verdicts"]}
+    assert got == {("coulomb", ("NO", "ground")), ("quadratic_damper", ("LO", "ground"))}
+    spec = Structure.from_dict(tomllib.loads(write_model(diag)))
+    kinds = [el.kind.name for el in spec.elements]
+    assert "coulomb" in kinds and "quadratic_damper" in kinds
+
+
+@needs_data
+@pytest.mark.slow
 def test_cli_writes_json_and_html(tmp_path):
     from siva_core.cli import main
 
     folder = GAPS / "cubic_damper_LO_NO"
-    out, html = tmp_path / "diag.json", tmp_path / "diag.html"
+    out, html, model = tmp_path / "diag.json", tmp_path / "diag.html", tmp_path / "aug.toml"
     rc = main(["diagnose", str(MODEL), "--train", str(folder / "impact_250N.csv"),
                str(folder / "impact_530N.csv"), "--val", str(folder / "impact_37N.csv"),
                str(folder / "impact_899N.csv"), "--out", str(out), "--html", str(html),
-               "--quiet"])
+               "--write-model", str(model), "--quiet"])
     assert rc == 0
     data = json.loads(out.read_text())
     _check_contract_shape(data)
@@ -357,6 +404,8 @@ def test_cli_writes_json_and_html(tmp_path):
     assert (data["verdict"]["kind"], data["verdict"]["between"]) == (kind, between)
     text = html.read_text()
     assert _png_count(text) >= 4 and "<script" not in text
+    aug = Structure.from_file(model)
+    assert any(el.kind.name == kind for el in aug.elements)
 
 
 def test_cli_refuses_a_bad_record(tmp_path, capsys):
