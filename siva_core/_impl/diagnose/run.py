@@ -64,9 +64,11 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     for c in sens:
         scan_sensor(c, structure, theta, train, proc)
     timing[f"{tag}scan"] = time.perf_counter() - t0
-    _say(progress, "magnitude scan (train cost; nominal %.4g): " % fit.train_cost + ", ".join(
-        f"{c.label()} {c.scan_cost:.4g}" for c in sorted(
-            [*chosen, *sens], key=lambda c: c.scan_cost)[:8]))
+    scanned = sorted((c for c in [*chosen, *sens] if np.isfinite(c.scan_cost)),
+                     key=lambda c: c.scan_cost)
+    _say(progress, f"fitted next: {', '.join(c.label() for c in chosen)}; scans (train cost, "
+                   f"nominal {fit.train_cost:.4g}): "
+                   + ", ".join(f"{c.label()} {c.scan_cost:.4g}" for c in scanned[:8]))
     best_sensor = min(sens, key=lambda c: c.scan_cost, default=None)
     if best_sensor is not None and \
             best_sensor.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
