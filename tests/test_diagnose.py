@@ -245,7 +245,8 @@ def test_real_coulomb_example_fast(lono, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         diag = diagnose(lono, train, val, "auto",
-                        settings=DiagnoseSettings(top_k=2, nominal_nfev=25, fit_nfev=25))
+                        settings=DiagnoseSettings(top_k=2, nominal_nfev=25, fit_nfev=25,
+                                                  sensors=False, max_effects=1))
     out = diag.to_json()
     _check_contract_shape(out)
     kind, between = _expected(folder)
