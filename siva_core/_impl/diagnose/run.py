@@ -162,6 +162,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         if n == 0:
             ranking, cands, rule = rk, cs, r
         if v is None:
+            _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
             break
         verdicts.append(v)
         _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
