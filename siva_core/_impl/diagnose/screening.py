@@ -282,7 +282,7 @@ def select_for_fit(cands: Sequence[Candidate], settings: DiagnoseSettings
         kinds.append(c.effect.kind)
         chosen.append(c)
     chosen = chosen[:settings.top_k]
-    for kind in [c.effect.kind for c in chosen[:2]]:
+    for kind in [c.effect.kind for c in chosen[:settings.runner_ups]]:
         second = [c for c in ranked if c.effect.kind == kind and c not in chosen]
         if second and strength(second[0]) >= settings.family_keep * top:
             chosen.append(second[0])

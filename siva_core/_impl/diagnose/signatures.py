@@ -146,8 +146,8 @@ def amplitude_signatures(structure: Structure, theta: np.ndarray, val: Sequence[
             curve = _binned(tracks, edges, f0)
             curve["damping_exponent"] = _slope(curve, "damping_ratio", log_y=True)
             curve["frequency_shift"] = _slope(curve, "frequency_hz", log_y=False)
-            curve["even_harmonics"] = float(np.nanmean(
-                [_even_ratio(y[:, d], fs, f0) for y, fs, _ in recs]))
+            ratios = [r for y, fs, _ in recs if np.isfinite(r := _even_ratio(y[:, d], fs, f0))]
+            curve["even_harmonics"] = float(np.mean(ratios)) if ratios else None
             entry[name] = curve
         out["modes"].append(entry)
     out["reading"] = _reading(out["modes"])
