@@ -170,7 +170,13 @@ def main() -> int:
             f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s}")
     print(head)
     for name in args.cases.split(","):
-        row = run(name.strip(), quiet=not args.verbose)
+        try:
+            row = run(name.strip(), quiet=not args.verbose)
+        except Exception as exc:  # noqa: BLE001 - a case that fails counts as wrong
+            row = {"case": name.strip(), "expected": "?", "verdict": f"ERROR {exc}"[:60],
+                   "correct": False, "first_right": False, "size_ratio": [],
+                   "closure": None, "gap_before": None, "gap_after": None,
+                   "coefficients": None, "reason": str(exc), "time_s": 0.0, "timing_s": {}}
         rows.append(row)
         fmt = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
         print(f"{row['case']:32s} {str(row['expected']):24s} {str(row['verdict']):24s} "

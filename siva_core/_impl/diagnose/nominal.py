@@ -28,6 +28,29 @@ def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
             and all(z > -1e-3 for z in modes["damping_ratio"]))
 
 
+#: element kinds whose coefficients only dissipate energy when positive
+DISSIPATIVE = frozenset({"damper", "quadratic_damper", "cubic_damper", "coulomb"})
+
+
+def _dissipative(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
+    """``theta`` with the negative coefficients of dissipative elements made positive, or
+    None when there are none.  Equation-error least squares on processed states of a
+    strongly nonlinear rig can trade a negative damper against a wrong nonlinear spring
+    (measured: a hardening spring NO-ground of 2e7 N/m^3 gave b2 = -0.77); the sign flip
+    gives the output-error fit a stable start in the right neighbourhood."""
+    free = list(structure.free)
+    th = np.array(theta, float)
+    changed = False
+    for el in structure.elements:
+        if el.kind.name not in DISSIPATIVE:
+            continue
+        for p in el.params:
+            if p in free and th[free.index(p)] < 0:
+                th[free.index(p)] = -th[free.index(p)]
+                changed = True
+    return th if changed else None
+
+
 @dataclass
 class NominalFit:
     """The nominal output-error fit and the equation-error fit it started from (kept for
@@ -73,6 +96,11 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
             continue
         if _plausible(structure, th, fs):
             starts.append((label, th, chain))
+            continue
+        fixed = _dissipative(structure, th)
+        if fixed is not None and _plausible(structure, fixed, fs):
+            _say(progress, f"nominal start {label}: negative damping made positive")
+            starts.append((f"{label}, dampers made dissipative", fixed, chain))
         else:
             _say(progress, f"nominal start {label} rejected (implausible: "
                            f"{structure.as_dict(th)})")
