@@ -15,7 +15,15 @@ Cases (the model is always the nominal LO-NO, examples/models/lono.toml):
   simulator, 4 s at 2048 Hz, 0.3 % acceleration / 0.2 % force noise; train 150 + 450 N,
   validate 50 + 800 N.
 
-Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--json FILE]``
+* ``syn2_*``: two elements at once in the generator; both must be named (``verdicts``).
+* ``sensor_*``: the nominal generator with one faulty sensor (an accelerometer's or the
+  force transducer's gain scaled after simulation); the verdict must be that sensor.
+
+Columns: the named effect(s), identified size / true size of each named expected effect,
+closure, gaps, wall time.  At the end: a confusion matrix of kinds.
+
+Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--json FILE] [--verbose]``
+(``SIVA_SHARED_DATA`` points at the shared data when it is not at ../shared/data)
 """
 from __future__ import annotations
 
@@ -159,6 +167,30 @@ def run(name: str, quiet: bool = True) -> dict[str, Any]:
     }
 
 
+def _kinds(label: str | None) -> str:
+    """'coulomb NO-ground + damper LO-ground' -> 'coulomb+damper' (the kind part only)."""
+    if not label:
+        return "none"
+    return "+".join(sorted(part.split()[0] for part in label.split(" + ")))
+
+
+def print_confusion(rows: list[dict[str, Any]]) -> None:
+    """Expected kind(s) (rows) against named kind(s) (columns), counting cases; a '*'
+    marks a right kind at a wrong place."""
+    exp = sorted({_kinds(r["expected"]) for r in rows})
+    got = sorted({_kinds(r["verdict"]) for r in rows} | set(exp))
+    width = max(len(g) for g in got) + 1
+    print("\nconfusion (rows expected, columns named; * = right kind, wrong place)")
+    print(" " * width + "".join(f"{g[:12]:>13s}" for g in got))
+    for e in exp:
+        cells = []
+        for g in got:
+            hit = [r for r in rows if _kinds(r["expected"]) == e and _kinds(r["verdict"]) == g]
+            wrong_place = any(e == g and not r["correct"] for r in hit)
+            cells.append(f"{(str(len(hit)) + ('*' if wrong_place else '')) if hit else '.':>13s}")
+        print(f"{e:{width}s}" + "".join(cells))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: " + ", ".join(CASES))
@@ -188,6 +220,7 @@ def main() -> int:
             print(f"    coefficients {row['coefficients']}; rule: {row['reason']}")
     n_ok = sum(r["correct"] for r in rows)
     print(f"{n_ok}/{len(rows)} verdicts as expected; total {sum(r['time_s'] for r in rows):.0f} s")
+    print_confusion(rows)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2, default=float) + "\n")
     return 0 if n_ok == len(rows) else 1
