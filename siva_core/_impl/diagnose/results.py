@@ -50,7 +50,8 @@ class Candidate:
     ee_shape: dict[str, float] = field(default_factory=dict)
     names: dict[str, str] = field(default_factory=dict)   # coefficient -> new parameter
     scan_cost: float = math.inf   # train cost at the best point of the magnitude scan
-    scan_theta: np.ndarray | None = None
+    scan_theta: np.ndarray | None = None   # best scan point + its Gauss-Newton re-tune
+    scan_raw: np.ndarray | None = None     # the best scan point itself
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %
 
     @property

@@ -52,8 +52,6 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     t0 = time.perf_counter()
     chosen = select_for_fit(cands, settings)
     for k, c in enumerate(chosen):
-        if c.admissible and c.estimate != 0:
-            continue  # the score test's estimate is a usable start (measured: better basin)
         try:
             scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
                            nom.force_scale, nom.jacobian, nom.basis)
@@ -80,7 +78,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                 fit_sensor(c, structure, theta, train, proc, settings)
             else:
                 fit_candidate(c, structure, theta, train, proc,
-                              nom.amplitudes[c.loc.between], settings, nom.force_scale)
+                              nom.amplitudes[c.loc.between], settings, nom.force_scale,
+                              fit.train_cost)
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")

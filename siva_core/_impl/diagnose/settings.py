@@ -28,6 +28,8 @@ class DiagnoseSettings:
     family_keep: a family goes to the scan and the local fit when its best screening score
         is at least this share of the leading family's (look-alikes are fitted side by side).
     runner_ups: the leading families whose second-best location is fitted too.
+    stalled: a candidate fit whose train cost stays above this share of the nominal one
+        is restarted from its magnitude scan.
     sensor_gain: the best sensor fault is fitted when correcting the records by its scanned
         value lowers the nominal train cost by at least this share.
     max_effects: most effects named at once (added greedily while each one is significant
@@ -49,6 +51,7 @@ class DiagnoseSettings:
     ee_strong: float = 0.25
     family_keep: float = 0.1
     runner_ups: int = 2
+    stalled: float = 0.5
     sensor_gain: float = 0.2
     max_effects: int = 2
     sensors: bool = True
