@@ -36,6 +36,23 @@ def _gap(structure: Structure, theta: np.ndarray, val: Sequence[Recording],
     return float(r @ r), outs.blocks(r)
 
 
+def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
+             settings: DiagnoseSettings) -> bool:
+    """The best candidate failed the verdict rule only on its size, but closes at least
+    ``settings.step_min`` of the gap: one of several effects."""
+    checks = rule.get("checks") or {}
+    return bool(ranking and checks and not checks["closure"]
+                and all(ok for k, ok in checks.items() if k != "closure")
+                and ranking[0].closure >= settings.step_min)
+
+
+def _combined_closure(verdicts: Sequence[Candidate], gap_before: float) -> float:
+    """Closure of the original gap by all named effects together (the last stage's gap)."""
+    if not verdicts or not gap_before > 0:
+        return 0.0
+    return float(1.0 - verdicts[-1].gap_after / gap_before)
+
+
 def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
            val: Sequence[Recording], proc: Processing, effects: Sequence[Effect],
            settings: DiagnoseSettings, gap_before: float, before_blocks: np.ndarray,
@@ -160,6 +177,13 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                        "verdict": v.label() if v is not None else None})
         if n == 0:
             ranking, cands, rule = rk, cs, r
+        if v is None and _partial(r, rk, settings) and n + 1 < n_stages:
+            # a significant part of a larger gap: keep it tentatively and look for the
+            # rest; the set is named only if together they reach closure_min
+            v = rk[0]
+            stages[-1]["tentative"] = v.label()
+            _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap: "
+                           "a part of it, looking for a second effect")
         if v is None:
             _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
             break
@@ -187,10 +211,19 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     where["noise_floor_spectral"] = psd_floor
     verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings)
     rule = {**rule, **rule0}
-    if verdict is None:
+    combined = _combined_closure(verdicts, gap_before)
+    rule["combined_closure"] = combined
+    if len(verdicts) > 1 and rule0["checks"]["above_noise"] \
+            and combined >= settings.closure_min:
+        verdict = verdicts[0]
+        rule["reason"] = (f"{len(verdicts)} effects, each significant on the validation "
+                          f"records, together close {combined:.3f} of the gap")
+    elif verdict is None:
         verdicts = []
     elif verdicts and verdicts[0] is not verdict:
         verdicts = [verdict]
+    elif len(verdicts) > 1 and combined < settings.closure_min:
+        verdicts = verdicts[:1]
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
             f" No candidate is named: {rule['reason']}."

@@ -30,6 +30,8 @@ class DiagnoseSettings:
     runner_ups: the leading families whose second-best location is fitted too.
     stalled: a candidate fit whose train cost stays above this share of the nominal one
         is restarted from its magnitude scan.
+    step_min: with several effects, each one added must close at least this share of the
+        gap left before it (and pass the other checks); the set must reach closure_min.
     sensor_gain: the best sensor fault is fitted when correcting the records by its scanned
         value lowers the nominal train cost by at least this share.
     max_effects: most effects named at once (added greedily while each one is significant
@@ -52,6 +54,7 @@ class DiagnoseSettings:
     family_keep: float = 0.1
     runner_ups: int = 2
     stalled: float = 0.5
+    step_min: float = 0.25
     sensor_gain: float = 0.2
     max_effects: int = 2
     sensors: bool = True
