@@ -46,6 +46,21 @@ def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
                 and ranking[0].closure >= settings.step_min)
 
 
+def _refresh(verdicts: Sequence[Candidate]) -> None:
+    """Earlier structural effects were re-fitted jointly with the later ones: report their
+    coefficients from the last fit (their stage-1 intervals no longer apply)."""
+    last = next((v for v in reversed(verdicts) if v.category == "structure"), None)
+    if last is None or last.structure is None or last.theta is None:
+        return
+    values = last.structure.as_dict(last.theta)
+    for v in verdicts:
+        if v is last or v.category != "structure" or not v.names:
+            continue
+        new = {k: values[p] for k, p in v.names.items() if p in values}
+        if new:
+            v.coefficients, v.intervals = new, {}
+
+
 def _combined_closure(verdicts: Sequence[Candidate], gap_before: float) -> float:
     """Closure of the original gap by all named effects together (the last stage's gap)."""
     if not verdicts or not gap_before > 0:
@@ -77,17 +92,20 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         fraction(0.15 + 0.2 * (k + 1) / max(len(chosen), 1))
     sens = sensor_candidates(structure, train) if sensors else []
     for c in sens:
-        scan_sensor(c, structure, theta, train, proc)
+        scan_sensor(c, structure, theta, train, proc, nom.basis)
     timing[f"{tag}scan"] = time.perf_counter() - t0
     scanned = sorted((c for c in [*chosen, *sens] if np.isfinite(c.scan_cost)),
                      key=lambda c: c.scan_cost)
     _say(progress, f"fitted next: {', '.join(c.label() for c in chosen)}; scans (train cost, "
                    f"nominal {fit.train_cost:.4g}): "
                    + ", ".join(f"{c.label()} {c.scan_cost:.4g}" for c in scanned[:8]))
-    best_sensor = min(sens, key=lambda c: c.scan_cost, default=None)
-    if best_sensor is not None and \
-            best_sensor.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
-        chosen.append(best_sensor)
+    # the two best sensor faults of different kinds whose scan clearly beats the nominal
+    kinds: set[str] = set()
+    for c in sorted(sens, key=lambda c: c.scan_cost):
+        if len(kinds) < 2 and c.effect.kind not in kinds and \
+                c.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
+            kinds.add(c.effect.kind)
+            chosen.append(c)
     t0 = time.perf_counter()
     for k, c in enumerate(chosen):
         try:
@@ -197,6 +215,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         cur_struct = v.structure
         cur_fit = NominalFit(v.theta, v.train_cost, f"with {v.label()}")
         cur_gap, cur_blocks = _gap(cur_struct, v.theta, cur_val, proc)
+    _refresh(verdicts)
     report(0.97)
 
     t0 = time.perf_counter()
