@@ -232,7 +232,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule = {**rule, **rule0}
     combined = _combined_closure(verdicts, gap_before)
     rule["combined_closure"] = combined
-    if len(verdicts) > 1 and rule0["checks"]["above_noise"] \
+    if len(verdicts) > 1 and (rule0.get("checks") or {}).get("above_noise", False) \
             and combined >= settings.closure_min:
         verdict = verdicts[0]
         rule["reason"] = (f"{len(verdicts)} effects, each significant on the validation "
