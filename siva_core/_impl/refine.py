@@ -24,7 +24,6 @@ parameter for impact records, whose response is very sensitive to the impulse.
 """
 from __future__ import annotations
 
-import copy
 import math
 import time
 import warnings
@@ -86,14 +85,11 @@ class OutputErrorProblem:
     processing: Processing
     backend: str = "numpy"
     interp: str = "linear"
-    _chain: Processing | None = field(default=None, repr=False, compare=False)
 
     @property
     def chain(self) -> Processing:
-        """The processing actually run (the same settings, memoised filter designs)."""
-        if self._chain is None:
-            self._chain = fast_chain(self.processing)
-        return self._chain
+        """The processing run on measured and simulated records."""
+        return self.processing
 
     @property
     def n_residuals(self) -> int:
@@ -112,7 +108,7 @@ class OutputErrorProblem:
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
         ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
         processing = processing or Processing()
-        chain = fast_chain(processing)
+        chain = processing
         recs = [records] if isinstance(records, Recording) else list(records)
         if not recs:
             raise ValueError("output error needs at least one record")
@@ -146,7 +142,7 @@ class OutputErrorProblem:
             state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
                                         np.sqrt(np.mean(meas.v ** 2, axis=0))])
             prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
-        return cls(structure, prepared, processing, use, interp, chain)
+        return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
                          force_scale: np.ndarray | None = None) -> list[States | None]:
@@ -228,35 +224,7 @@ class OutputErrorProblem:
                                 np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
                                 r.state_rms))
         return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
-                                  self.interp, self.chain)
-
-
-# ---------------------------------------------------------------------------- fast chain
-def fast_chain(processing: Processing) -> Processing:
-    """A copy of the chain whose filter designs are memoised.
-
-    ``Processing._sos`` designs the Butterworth filter on every call, which is most of the
-    chain's cost when it runs thousands of times on short records (refine, diagnose).  The
-    copy's class subclasses the original's, so all other behaviour is the original's.  Use
-    it internally only: dataclass equality is class-sensitive.
-    """
-    if getattr(processing, "_siva_fast", False):
-        return processing
-    base = type(processing)
-    base_sos = base._sos
-
-    def _sos(self: Processing, kind: str, cut: Any, fs: float) -> Any:
-        cache = self.__dict__.setdefault("_siva_sos_cache", {})
-        key = (kind, tuple(cut) if isinstance(cut, (list, tuple)) else cut, float(fs))
-        if key not in cache:
-            cache[key] = base_sos(self, kind, cut, fs)
-        return cache[key]
-
-    fast_cls = type(f"Fast{base.__name__}", (base,), {"_sos": _sos, "_siva_fast": True})
-    out = copy.copy(processing)
-    out.__class__ = fast_cls
-    out.__dict__.pop("_siva_sos_cache", None)
-    return out
+                                  self.interp)
 
 
 def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
@@ -293,7 +261,7 @@ def output_error(structure: Any, thetas: Any, records: Recording | Sequence[Reco
     """(B,) normalised output-error cost of each parameter set: the mean over records and
     DOFs of MSE / (measured RMS)^2 (0 = perfect, 1 = as bad as predicting zero).
 
-    Each record is simulated (``simulate_like``), rebuilt as a Recording with the measured
+    Each record is simulated (``simulate``), rebuilt as a Recording with the measured
     channels, put through the same chain and compared with the processed measurement on
     the measured quantities.  ``kw``: substeps ("auto"), backend, force_gate, initial,
     interp, omega_h (see ``OutputErrorProblem.build``).
