@@ -21,8 +21,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from siva_core._impl.recording import RecordingError
-from siva_core._impl.structure import SpecError, Structure
+from siva_core import RecordingError, SpecError, Structure
 
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
@@ -90,7 +89,7 @@ class SivaService:
             torch.set_num_threads(self.settings.torch_threads)
         self.events = _make_event_log(self.settings)
         try:  # import torch and the trainer now, not inside the first PUT
-            import siva_core._impl.training  # noqa: F401
+            from siva_core import SivaTrainer  # noqa: F401
         except Exception:  # noqa: BLE001 - the workers report it per system
             log.exception("cannot import the trainer")
         for name in self.store.load():

@@ -226,7 +226,7 @@ class _Replayer:
         self._recs: dict[str, Any] = {}
 
     def recording(self, rid: str) -> Any:
-        from siva_core._impl.recording import Recording
+        from siva_core import Recording
 
         if rid not in self._recs:
             ev = self.plan.recordings.get(rid)
@@ -242,7 +242,7 @@ class _Replayer:
     def states(self, ds: _DataSet) -> tuple[list[Any], list[Any]]:
         """Exactly the worker's refresh: the logged chain (or one chosen, as the worker
         does, on all selected records) applied to each record."""
-        from siva_core._impl.processing import Processing
+        from siva_core import Processing
 
         from .worker import processing_for
 

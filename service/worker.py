@@ -15,7 +15,7 @@ record it sleeps.  A trainer exception is logged, shown in the snapshot, and ret
 a back-off; it never kills the thread.
 
 ``best`` (the recommended value of ``Siva.fit``: Approach III over the ensemble, then the
-output-error refinement, ``siva_core._impl.siva.recommend_best``) is computed by a second
+output-error refinement, ``siva_core.recommend_best``) is computed by a second
 thread per system, the refiner, so that neither training nor reads ever wait for it.  Once
 converged, the trainer thread hands it a job (a copy of the ensemble's last samples, the
 ids of the most recent training records and the processing chain) whenever the data set
@@ -37,9 +37,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from siva_core._impl.processing import Processing, States
-from siva_core._impl.recording import Recording, RecordingError
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, RecordingError, States, Structure
 
 from .drift import DriftMonitor, DriftRule, modal_quantities
 from .settings import Settings
@@ -57,11 +55,10 @@ CHECKPOINT_VERSION = 1
 
 # --------------------------------------------------------------------------- helpers
 def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:
-    """The processing chain for these records: ``Processing.auto`` when available."""
-    auto = getattr(Processing, "auto", None)
-    if auto is None or not recordings:
+    """The processing chain for these records: ``Processing.auto`` (none without records)."""
+    if not recordings:
         return Processing()
-    return auto(list(recordings), list(dofs))
+    return Processing.auto(list(recordings), list(dofs))
 
 
 def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str) -> dict[str, Any]:
@@ -553,7 +550,7 @@ class SystemWorker:
     def _refine(self, job: dict[str, Any]) -> dict[str, Any] | None:
         """Refiner thread: ``recommend_best`` on the job's records, re-parsed from the store.
         None when the data set changed meanwhile (a newer job follows) or the service stops."""
-        from siva_core._impl.siva import recommend_best
+        from siva_core import recommend_best
 
         t0 = time.perf_counter()
         by_id = {m.id: m for m in self.store.recordings(self.name)}
@@ -625,7 +622,7 @@ def estimate_view(snapshot: Mapping[str, Any], counts: Mapping[str, int]) -> dic
 
 def default_trainer(structure: Structure, settings: Settings) -> Any:
     """The lead's SivaTrainer with the preset and seed of the settings."""
-    from siva_core._impl.training import SivaSettings, SivaTrainer
+    from siva_core import SivaSettings, SivaTrainer
 
     preset = getattr(SivaSettings, settings.preset, None)
     if preset is None:
@@ -643,6 +640,6 @@ def estimate_parameters(structure: Structure, tr: Any) -> tuple[dict[str, Any], 
         return summary, "approach_II"
     if tr.epoch == 0 or not getattr(tr, "initialised", True):
         return {}, None
-    from siva_core._impl.ensemble import normal_summary
+    from siva_core import normal_summary
 
     return normal_summary(tr.sample(256), free, ess=False), "generator"

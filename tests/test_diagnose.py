@@ -20,10 +20,8 @@ from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, _am
                                       _bands, _energy_windows, augmented, candidate_sites,
                                       decide, diagnose, html_report, synthetic_impacts,
                                       with_effect)
-from siva_core._impl.effects import EFFECTS, Effect, register_effect
-from siva_core._impl.elements import REGISTRY
-from siva_core._impl.structure import Structure
-from siva_core._impl.recording import Recording
+from siva_core import ELEMENT_KINDS as REGISTRY
+from siva_core import EFFECTS, Effect, Recording, Structure, register_effect
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

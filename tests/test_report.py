@@ -9,8 +9,7 @@ import pytest
 
 from siva_core import Recording, Siva, Structure
 from synthetic import SDOF, TRUE, free_decay
-from siva_core._impl.report import write_report
-from siva_core._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
+from siva_core import cwt, dominant_frequency, fourier_amplitude, frequency_band, write_report
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")

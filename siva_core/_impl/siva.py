@@ -39,8 +39,7 @@ def choose_processing(processing: str | dict | Processing | None, recordings: Se
     if processing == "paper":
         return Processing.paper()
     if processing == "auto":
-        auto = getattr(Processing, "auto", None)
-        return auto(recordings, dofs) if auto else Processing()
+        return Processing.auto(recordings, dofs)
     if isinstance(processing, str):
         processing = json.loads(processing)
     if isinstance(processing, dict):

@@ -5,7 +5,7 @@ import hashlib
 import json
 import time
 
-from siva_core._impl.recording import Recording
+from siva_core import Recording
 
 
 def test_healthz_and_openapi(client):

@@ -111,8 +111,7 @@ def duffing_problem(spec_of):
 
 
 def test_recommend_best_refines_the_approach_III_winner(duffing_problem):
-    from siva_core._impl.refine import displacement_mse, output_error
-    from siva_core._impl.siva import recommend_best
+    from siva_core import displacement_mse, output_error, recommend_best
 
     st, rec, proc, truth = duffing_problem
     rng = np.random.default_rng(1)
@@ -134,7 +133,7 @@ def test_recommend_best_refines_the_approach_III_winner(duffing_problem):
 
 
 def test_recommend_best_without_refinement_is_approach_III(duffing_problem):
-    from siva_core._impl.siva import recommend_best
+    from siva_core import recommend_best
 
     st, rec, proc, truth = duffing_problem
     cand = np.stack([truth * 1.2, truth * 1.01, truth * 0.8])
