@@ -79,7 +79,7 @@ def test_lono_as_measured_best_within_tolerance():
 
 
 def _siva(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "siva_core.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "siva_cli", *args], capture_output=True,
                           text=True, cwd=ROOT, timeout=600, **kw)
 
 

@@ -259,7 +259,7 @@ def test_dockerfile_builds_what_the_repo_has() -> None:
     cmd = json.loads(next(a for k, a in steps if k == "CMD"))
     assert cmd == ["siva", "serve", "--host", "0.0.0.0", "--data-dir", "/data"]
     assert "siva" in pyproject["project"]["scripts"]
-    from siva_core.cli import build_parser
+    from siva_cli import build_parser
 
     ns = build_parser().parse_args(cmd[1:])
     assert (ns.command, ns.host, ns.data_dir, ns.port) == ("serve", "0.0.0.0", "/data", 8000)
