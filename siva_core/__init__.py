@@ -87,7 +87,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
 
-if TYPE_CHECKING:  # static analysers and IDEs see the real objects
+if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check the lists match)
     from ._impl.baselines import FitResult, least_squares, sindy
     from ._impl.convergence import ConvergenceMonitor
     from ._impl.diagnose import (DiagnoseSettings, Diagnosis, diagnose, html_report,

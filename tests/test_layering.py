@@ -91,6 +91,17 @@ def test_public_api_resolves() -> None:
             "register_effect", "recommend_best", "Siva", "Processing"} <= set(siva_core.__all__)
 
 
+def test_static_imports_match_the_lazy_table() -> None:
+    """The ``if TYPE_CHECKING`` imports (what IDEs and type checkers see) list exactly the
+    names the lazy table exports, from the same modules."""
+    tree = ast.parse((ROOT / "siva_core" / "__init__.py").read_text())
+    block = next(n for n in tree.body if isinstance(n, ast.If)
+                 and isinstance(n.test, ast.Name) and n.test.id == "TYPE_CHECKING")
+    static = {(a.asname or a.name): (node.module.removeprefix("_impl."), a.name)
+              for node in block.body if isinstance(node, ast.ImportFrom) for a in node.names}
+    assert static == siva_core._EXPORTS
+
+
 def test_siva_help_loads_neither_torch_nor_the_service_stack() -> None:
     """``siva --help`` must stay fast: the program imports no numerics and no web stack."""
     code = ("import sys, contextlib, io\n"
