@@ -240,10 +240,11 @@ def compiled_kernel(structure: Any) -> Callable[..., None]:
         return fn
 
 
-
 def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarray,
-               V0: np.ndarray, F: np.ndarray | None, m: int,
-               force_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              V0: np.ndarray, F: np.ndarray | None, m: int,
+              force_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Q, V, A), each (B, T, n_dof), by the compiled kernel; ``F`` is the force on the
+    stage grid (``grid.stage_force``) or None."""
     kernel = compiled_kernel(structure)
     values = structure.full_values(theta)
     B, n = Q0.shape
@@ -262,7 +263,6 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
         kernel(P, G, Fa, invm, np.ascontiguousarray(Q0), np.ascontiguousarray(V0),
                float(dt), int(m), Q, V, A)
     return Q, V, A
-
 
 
 def numba_unusable(structure: Any) -> str | None:

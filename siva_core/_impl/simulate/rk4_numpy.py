@@ -13,8 +13,8 @@ from .grid import BLOWUP
 
 
 def run_numpy(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarray,
-               V0: np.ndarray, F: np.ndarray | None, m: int,
-               force_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              V0: np.ndarray, F: np.ndarray | None, m: int,
+              force_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Generic RK4 over the batch with ``structure.accelerations`` (one call per stage).
     ``F`` is the force on the stage grid (see ``stage_force``) or None."""
     B, n = Q0.shape
