@@ -212,6 +212,10 @@ class Siva:
     n_samples: Approach I sample count (paper: 1000).
     n_candidates: at most this many Approach II samples are simulated for Approach III.
     refine: run the output-error refinement that gives ``best``.
+    fit_target: "output" (default of the fast preset): after the paper's equation-error
+        training, SIVA continues on the output error through the processing chain
+        (unbiased on measured data; Approach II from that phase); "equation": the paper's
+        equation error only (the paper preset's default).
     baselines: also fit plain least squares and SINDy (pysindy) on the same states.
     """
 
@@ -219,7 +223,7 @@ class Siva:
                  settings: SivaSettings | None = None, preset: str = "fast", seed: int = 42,
                  max_epochs: int | None = None, n_samples: int = 1000, n_candidates: int = 600,
                  refine: bool = True, baselines: bool = True, progress: Progress | None = _stderr,
-                 progress_every: int = 25) -> None:
+                 progress_every: int = 25, fit_target: str | None = None) -> None:
         self.structure = structure
         self.processing = processing
         self.settings = settings
@@ -232,6 +236,7 @@ class Siva:
         self.baselines = baselines
         self.progress = progress
         self.progress_every = progress_every
+        self.fit_target = fit_target
 
     def _say(self, msg: str) -> None:
         if self.progress:
@@ -244,6 +249,10 @@ class Siva:
         kw: dict[str, Any] = {"seed": self.seed}
         if self.max_epochs is not None:
             kw["max_epochs"] = self.max_epochs
+        if self.fit_target is not None:
+            if self.fit_target not in ("output", "equation"):
+                raise ValueError(f"fit_target must be 'output' or 'equation', got {self.fit_target!r}")
+            kw["fit_target"] = self.fit_target
         return make(**kw)
 
     def fit(self, train: Sequence[Recording], val: Sequence[Recording]) -> "Siva":
