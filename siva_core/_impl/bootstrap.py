@@ -128,6 +128,8 @@ def phase_randomized(r: np.ndarray, series: Sequence[Series],
         spec = np.fft.rfft(block - block.mean(0), axis=0)
         phase = np.exp(2j * np.pi * rng.random(spec.shape))
         phase[0] = 1.0
+        if s.T % 2 == 0:  # the Nyquist bin of an even length is real
+            phase[-1] = np.sign(phase[-1].real) + (phase[-1].real == 0)
         sur = np.fft.irfft(np.abs(spec) * phase, n=s.T, axis=0)
         out[s.start:s.start + s.T * s.width] = sur.reshape(-1)
     return out
