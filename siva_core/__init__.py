@@ -20,7 +20,8 @@ Simulation
 Identification
     :class:`Siva` (``fit`` returns self; results in ``result_``: :class:`Identification`),
     :class:`SivaSettings`, :class:`SivaTrainer`, :func:`choose_processing`,
-    :func:`recommend_best`; :class:`Ensemble`, :func:`normal_summary`,
+    :func:`recommend_best`, :func:`validation_score` (held-out records: does the model
+    explain them up to noise?); :class:`Ensemble`, :func:`normal_summary`,
     :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
     :func:`displacement_mse`, :class:`OutputErrorProblem`;
@@ -64,6 +65,7 @@ _export("convergence", "ConvergenceMonitor")
 _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
         "OutputErrorProblem")
 _export("baselines", "least_squares", "sindy", "FitResult")
+_export("validation", "validation_score")
 _export("diagnose", "diagnose", "Diagnosis", "DiagnoseSettings", "synthetic_impacts",
         "with_effect", "html_report")
 _export("effects", "Effect", "EFFECTS", "register_effect")
@@ -109,3 +111,4 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
     from ._impl.structure import SpecError, Structure
     from ._impl.training import SivaSettings, SivaTrainer
+    from ._impl.validation import validation_score

@@ -21,6 +21,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_training.py": {"siva_core._impl.networks": "the networks' internals"},
     "tests/test_recording.py": {"siva_core._impl.mcap_recording": "the MCAP topic constant"},
     "tests/test_report.py": {"siva_core._impl.report": "the report's record helpers"},
+    "tests/test_uncertainty.py": {"siva_core._impl.bootstrap": "the bootstrap's internals",
+                                  "siva_core._impl.validation": "the noise estimator"},
     "tests/test_diagnose.py": {"siva_core._impl.diagnose": "the diagnosis' steps",
                                "siva_core._impl.effects": "effect amplitudes"},
 }

@@ -18,7 +18,7 @@ def identify_command(args: argparse.Namespace) -> int:
     progress = None if args.quiet else _progress
     est = Siva(structure, processing=args.processing, preset=args.preset, seed=args.seed,
                max_epochs=args.epochs, baselines=not args.no_baselines,
-               progress=progress).fit(train, val)
+               progress=progress, fit_target=getattr(args, "fit_target", None)).fit(train, val)
     result = est.result_
     if args.report:
         from .report import write_report
