@@ -43,6 +43,8 @@ from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_an
                        simulate, stage_force)
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
+#: relative standard error below which no interval is reported (simulation accuracy)
+NUMERICAL_REL_STD = 1e-6
 #: a log-scaled parameter stays within this factor of theta0 (see ``_x_bounds``)
 LOG_RANGE = 20.0
 #: full-record cost below which theta0 is taken to be in the basin (no growing horizons):
@@ -521,6 +523,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         cov, block = cov_gn, 1
     else:
         raise ValueError(f"uncertainty must be 'bootstrap' or 'gauss-newton', got {uncertainty!r}")
+    # never narrower than the simulator's own accuracy: on noise-free records the
+    # statistical spread vanishes and RK4 vs the data's integrator differ by ~1e-7
+    floor = NUMERICAL_REL_STD * np.abs(theta)
+    cov = cov + np.diag(floor ** 2)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     std_gn = np.sqrt(np.clip(np.diag(cov_gn), 0, None))
     ci = np.stack([theta - Z95 * std, theta + Z95 * std], axis=1)

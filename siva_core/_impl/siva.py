@@ -17,6 +17,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .ensemble import normal_summary
+from .refine import NUMERICAL_REL_STD
 from .processing import Processing
 from .recording import Recording
 from .structure import Structure
@@ -318,7 +319,7 @@ class Siva:
         else:
             samples_II = np.array(trainer.history["theta"][-settings.ensemble_epochs:])
         summ_I = normal_summary(samples_I, names, ess=False)
-        summ_II = normal_summary(samples_II, names)
+        summ_II = normal_summary(samples_II, names, floor_rel=NUMERICAL_REL_STD)
         timing["approach_I_II"] = time.perf_counter() - t0
         if settings.fit_target == "output":
             # Approach III over the output-error ensemble (the paper's rule, its candidates)
