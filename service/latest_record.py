@@ -86,7 +86,11 @@ def compute_latest(structure: Structure, rec: Recording, processing: Processing 
         diverged = True
     fs = 1.0 / float(t[1] - t[0])
     step = _stride(len(t), MAX_POINTS)
-    fmin, fmax = frequency_band(measured, fs)
+    try:  # the axes must show every mode, also a weak one the energy criterion would cut
+        modes = structure.linear_modes([theta[p] for p in structure.free]).get("frequency_hz", [])
+    except Exception:  # noqa: BLE001 - a derived quantity must not stop the view
+        modes = []
+    fmin, fmax = frequency_band(measured, fs, include=modes)
     out_dofs: dict[str, Any] = {}
     f_axis = None
     cwt_freqs = np.geomspace(max(fmax / 100, 2 * fs / len(t)), fmax, CWT_FREQS)
@@ -94,7 +98,7 @@ def compute_latest(structure: Structure, rec: Recording, processing: Processing 
     for k, d in enumerate(structure.dofs):
         m, s = measured[:, k], simulated[:, k]
         f, am = fourier_amplitude(m, fs)
-        sel = f <= fmax
+        sel = (f > 0) & (f <= fmax)
         fstep = _stride(int(sel.sum()), MAX_POINTS)
         f_axis = f[sel][::fstep]
         entry: dict[str, Any] = {
@@ -119,6 +123,7 @@ def compute_latest(structure: Structure, rec: Recording, processing: Processing 
             "diverged": diverged,
             "spectrum_hz": _series(f_axis if f_axis is not None else []),
             "band_hz": [float(fmin), float(fmax)],
+            "modes_hz": [float(f) for f in modes if np.isfinite(f)],
             "cwt_hz": _series(cwt_freqs), "cwt_t": _series(t[::cstep]),
             "units": {"t": "s", "displacement": "mm", "spectrum": "mm", "cwt": "normalised |W| (max 1)"},
             "dofs": out_dofs}

@@ -27,7 +27,7 @@ function fmt(x, digits) {
   if (x === null || x === undefined || typeof x !== "number" || !isFinite(x)) return "–";
   const d = digits || 5;
   const a = Math.abs(x);
-  return (a !== 0 && (a < 1e-3 || a >= 1e6)) ? x.toExponential(d - 1) : x.toPrecision(d).replace(/\.?0+$/, "");
+  return (a !== 0 && (a < 1e-3 || a >= 1e6)) ? x.toExponential(d - 1) : String(Number(x.toPrecision(d)));
 }
 function isoOf(t) {
   return typeof t === "number" ? new Date(t * 1000).toISOString().replace(/\.\d+Z$/, "Z") : "–";
@@ -53,6 +53,8 @@ function upsertPlot(id, container, opts, data) {
   let p = state.plots[id];
   if (p && (p.sig !== sig || !container.contains(p.u.root))) { p.u.destroy(); p = null; }
   if (!p) {
+    opts.legend = Object.assign({ live: false }, opts.legend || {});
+    for (const a of opts.axes || []) if (!a.values) a.values = (u, vals) => vals.map(v => fmt(v, 3));
     const u = new uPlot(opts, data, container);
     state.plots[id] = p = { u, sig };
   } else {
@@ -66,9 +68,9 @@ function dropPlots(prefix) {
   }
 }
 /** uPlot hook: vertical red lines at the given x values (alarm epochs). */
-function markersPlugin(xs) {
+function markersPlugin(xs, color) {
   return { hooks: { draw: [u => {
-    const ctx = u.ctx; ctx.save(); ctx.strokeStyle = "#d62728"; ctx.lineWidth = 1.5;
+    const ctx = u.ctx; ctx.save(); ctx.strokeStyle = color || "#d62728"; ctx.lineWidth = 1.5;
     for (const x of xs) {
       const px = u.valToPos(x, "x", true);
       if (px < u.bbox.left || px > u.bbox.left + u.bbox.width) continue;
@@ -194,7 +196,6 @@ function renderParamTraces(drift, est) {
         { label: "ref lo", stroke: "#555", dash: [4, 4], width: 1 },
         { label: "ref hi", stroke: "#555", dash: [4, 4], width: 1 }],
       bands: [{ series: [4, 3], fill: "rgba(255,127,14,0.18)" }],
-      legend: { show: true },
     };
     upsertPlot(id, holder, opts, [x, recent, mean, lo, hi, rlo, rhi]);
   }
@@ -267,7 +268,8 @@ function renderLatest(lr) {
     const pos = a => (a || []).map(v => (typeof v === "number" && v > 0 ? v : null));
     const h3 = holder(specBox, "latest:spec:" + d);
     upsertPlot("latest:spec:" + d, h3, { title: `${d}`, width: plotWidth(specBox), height: 200,
-      scales: { x: { time: false }, y: { distr: 3 } }, axes: [{ label: "frequency [Hz]" }, { size: 70 }],
+      scales: { x: { time: false }, y: { distr: 3, range: (u, lo, hi) => [Math.max(lo, hi * 1e-4), hi * 2] } },
+      axes: [{ label: "frequency [Hz]" }, { size: 70 }], plugins: [markersPlugin(lr.modes_hz || [], "#2ca02c")],
       series: [{ label: "Hz" }, { label: "measured", stroke: "#000", width: 1 }, { label: "simulated", stroke: "#d62728", width: 1 }] },
       [lr.spectrum_hz, pos(sp.measured), sp.simulated ? pos(sp.simulated) : lr.spectrum_hz.map(() => null)]);
     drawCwtRow(cwtBox, d, D.cwt || {}, lr.cwt_hz || [], lr.cwt_t || []);
