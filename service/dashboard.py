@@ -91,6 +91,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
                                     theta)
         return {"system": name, "available": True, "record": record,
                 "parameters": theta, "parameters_source": source,
+                "parameter_units": w.structure.parameter_units(),
                 "epoch": snap.get("epoch"), **series}
 
     try:

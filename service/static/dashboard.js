@@ -106,6 +106,7 @@ function select(name) {
     history.replaceState(null, "", "#" + encodeURIComponent(name));
     dropPlots("");
     state.tick = 0;
+    state.units = null;
   }
   refresh();
 }
@@ -120,7 +121,7 @@ function renderEstimate(est) {
   const { params, source, best } = headline(est);
   const names = Object.keys(params).length ? Object.keys(params) : Object.keys(best);
   if (!names.length) { box.replaceChildren(na("no estimate yet (" + (est.state || "starting") + ")")); return; }
-  const units = est.units || {};
+  const units = est.units || est.parameter_units || state.units || {};
   const t = el("table", {}, el("tr", {}, ...["parameter", "value", "95 % interval", "source", "best (output error)", "best 95 %"].map(h => el("th", { text: h }))));
   for (const p of names) {
     const s = params[p] || {}; const b = best[p] || {};
@@ -250,6 +251,7 @@ function renderLatest(lr) {
   }
   for (const b of [box, specBox, cwtBox]) if (b.querySelector(".na")) b.replaceChildren();
   const rec = lr.record || {};
+  if (lr.parameter_units) state.units = lr.parameter_units;
   meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${rec.received_at_iso || isoOf(rec.received_at)}), ` +
     `simulated with ${lr.parameters_source || "?"}` + (lr.diverged ? " — the simulation diverged" : "");
   const dofs = Object.keys(lr.dofs || {});
