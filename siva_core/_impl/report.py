@@ -127,9 +127,11 @@ def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | 
              f"(d) {rs.role} record {rs.name}: measured vs simulated displacement, with the "
              "95 % bands of Approach I and of best, and the residuals (measured - simulated).")
         save(_fig_spectrum(rs, est.structure.dofs), f"spectrum_{slug}.png",
-             f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra.")
+             f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra; dashed grey: the "
+             "natural frequencies of best (the axis reaches past the highest).")
         save(_fig_cwt(rs, est.structure.dofs), f"cwt_{slug}.png",
-             f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best.")
+             f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best; "
+             "dashed white: the natural frequencies of best (the axis reaches past the highest).")
 
     index = out / "index.html"
     index.write_text(_html(est, res, names, truth_vec, written, sims, note))
@@ -438,7 +440,7 @@ def _fig_response(rs: _RecordSims, dofs: Sequence[str]) -> Any:
                         label=f"{LABELS[key]}: RMS {np.sqrt(np.mean(r ** 2)):.3g} mm "
                               f"({100 * np.sqrt(np.mean(r ** 2) / max(np.mean(m ** 2), 1e-300)):.1f} % of measured)")
         ax.axhline(0, color="k", lw=0.6)
-        ax.set_title(f"{rs.name} ({rs.role}) - {d}: residual measured - simulated")
+        ax.set_title(f"{d}: residual, measured - simulated")
         for ax in axs[k]:
             ax.set_ylabel(f"{d} displacement [mm]")
             ax.grid(alpha=0.3)
@@ -507,8 +509,7 @@ def _fig_cwt(rs: _RecordSims, dofs: Sequence[str]) -> Any:
             for fm in rs.modes_hz:
                 if freqs[0] <= fm <= freqs[-1]:
                     ax.axhline(fm, color="white", ls="--", lw=0.7)
-            ax.set_title(f"{rs.name} - {d}: CWT {label}"
-                         + (" (dashed: natural frequencies)" if rs.modes_hz else ""))
+            ax.set_title(f"{rs.name} - {d}: CWT {label}")
             ax.set_xlabel("time [s]")
             ax.set_ylabel("frequency [Hz]")
     fig.tight_layout(rect=(0, 0, 0.91, 1))
@@ -531,6 +532,7 @@ def _fmt(x: Any) -> str:
 def _interval(value: float, lo: float, hi: float, unit: str) -> str:
     """"v ± h unit (±r %)": readable where "[lo, hi]" would print the same digits twice."""
     half = 0.5 * (hi - lo)
+    unit = "" if unit == "-" else unit  # dimensionless: the unit column says so
     rel = f" (±{100 * half / abs(value):.2g} %)" if value else ""
     return f"{_fmt(value)} ± {float(half):.2g}{(' ' + html.escape(unit)) if unit else ''}{rel}"
 
@@ -567,7 +569,7 @@ def _html(est: Any, res: Any, names: Sequence[str], truth: np.ndarray | None,
             s = float(res.best_std[k])
             use = _interval(float(res.best[k]), res.best[k] - Z95 * s, res.best[k] + Z95 * s, u)
         else:
-            use = f"{_fmt(res.best[k])}{(' ' + e(u)) if u else ''} (no interval)"
+            use = f"{_fmt(res.best[k])}{(' ' + e(u)) if u and u != '-' else ''} (no interval)"
         cells = [f"{e(p)}", e(u) or "–", f"<b>{use}</b>"]
         if truth is not None:
             cells.append(_fmt(truth[k]))
