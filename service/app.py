@@ -285,7 +285,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             service.stop()
 
-    app = FastAPI(title="siva", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="siva", version="0.1.0", lifespan=lifespan, docs_url=None,
                   description="Streaming structural system identification (SIVA). "
                               "See docs/service.md.")
     app.state.service = service
@@ -294,6 +294,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     from .routes import router
 
     app.include_router(router)
+    from . import dashboard, metrics
+
+    dashboard.install(app)  # GET /, /docs (offline Swagger UI), /static, latest-record
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
@@ -328,6 +331,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        "this is a bug, it has been logged"}, status_code=500)
 
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
+    metrics.install(app, service)  # GET /metrics; its middleware outermost (counts 413s too)
     return app
 
 

@@ -289,6 +289,17 @@ class Structure:
             raise KeyError(f"missing values for parameters {missing}")
         return np.array([float(values[p]) for p in self.free])
 
+    def parameter_units(self) -> dict[str, str]:
+        """{parameter: SI unit} from the element kinds (a parameter shared by elements of
+        different units lists each, joined by " or "; "" when no kind says)."""
+        units: dict[str, list[str]] = {p: [] for p in self.parameters}
+        for el in self.elements:
+            for c, p in zip(el.kind.coefficients, el.params):
+                u = el.kind.units.get(c, "") if hasattr(el.kind, "units") else ""
+                if u and p in units and u not in units[p]:
+                    units[p].append(u)
+        return {p: " or ".join(u) for p, u in units.items() if not p.startswith("_fixed_")}
+
     def linear_parameters(self) -> list[str]:
         """Free parameters that enter the equations linearly wherever they appear."""
         lin = {p: True for p in self.free}
