@@ -21,6 +21,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from siva_core._impl.formats import RecordingTooLarge
 from siva_core._impl.recording import RecordingError
 from siva_core._impl.structure import SpecError, Structure
 
@@ -182,6 +183,8 @@ class SivaService:
         w = self.worker(name)
         try:
             info = parse_upload(w.structure, raw, fmt, filename)
+        except RecordingTooLarge as exc:
+            raise ApiError(413, str(exc)) from None
         except RecordingError as exc:
             raise ApiError(422, str(exc)) from None
         try:

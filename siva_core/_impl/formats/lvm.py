@@ -78,10 +78,9 @@ def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
         keep[c] = target
     time_col = None
     first = min((c for c in keep if split_unit(keep[c])[0] != "time"), default=None)
-    if any(split_unit(t)[0] == "time" for t in keep.values()):
-        pass
-    elif x_cols and first is not None:
-        time_col = max((c for c in x_cols if c < first), default=x_cols[0])
+    if x_cols and not any(split_unit(t)[0] == "time" for t in keep.values()):
+        before = [c for c in x_cols if first is None or c < first]
+        time_col = before[-1] if before else x_cols[0]
     data_lines = lines[names_row + 1:]
     while data_lines and not data_lines[-1].strip():
         data_lines.pop()

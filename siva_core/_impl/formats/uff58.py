@@ -7,7 +7,9 @@ Each dataset 58 (ASCII or binary ``58b``) is one channel: a function of time
   ``<quantity>_<rsp_node><dir>`` with the quantity from the ordinate data type (8
   displacement, 11 velocity, 12 acceleration, 13 excitation force) and the direction as
   ``x``/``y``/``z`` (``rsp_dir`` ±1..3), e.g. ``acc_3z``; ``channel_map`` renames either.
-- ``time = abscissa_min + i * abscissa_inc``, the same for every channel kept.
+- ``time = abscissa_min + i * abscissa_inc``, the same for every channel kept.  The format
+  stores the step with 6 significant digits; when ``1 / abscissa_inc`` rounds to a sampling
+  rate of at most 6 significant digits, that rate is used (2048 Hz exactly, not 2048.0008).
 - SI units are assumed (pyuff does not carry the unit system); complex data is refused.
 """
 from __future__ import annotations
@@ -95,8 +97,15 @@ def read_uff58(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits
         if not axis[1] > 0:
             raise RecordingError(f"{name}: abscissa increment {axis[1]} (uneven spacing is "
                                  "not supported)")
-        data["time"] = axis[0] + axis[1] * np.arange(axis[2])
+        data["time"] = axis[0] + _step(axis[1]) * np.arange(axis[2])
     return Columns(data)
+
+
+def _step(inc: float) -> float:
+    """The sampling step, undoing record 7's 6-digit rounding (E13.5) when the sampling rate
+    has at most 6 significant digits (2048 Hz: 4.88281e-04 s -> 1/2048 s exactly)."""
+    fs = float(f"{1.0 / inc:.6g}")
+    return 1.0 / fs if abs(1.0 / fs - inc) <= 5e-6 * inc else inc
 
 
 def write_uff58(rec: RecordLike) -> bytes:
@@ -110,13 +119,14 @@ def write_uff58(rec: RecordLike) -> bytes:
         uff = pyuff.UFF(path)
         for k, (col, y) in enumerate(rec.channels.items()):
             qty, _, dof = col.partition("_")
-            ds = pyuff.prepare_58(
-                binary=0, id1=col, id2=str(rec.name), func_type=1, rsp_node=k + 1, rsp_dir=1,
-                rsp_ent_name=dof[:10] or "dof", ref_ent_name="NONE", ref_node=0, ref_dir=0,
-                ordinate_spec_data_type=QUANTITY_ORDINATE.get(qty, 0),
-                abscissa_spec_data_type=17, abscissa_spacing=1,
-                abscissa_min=float(rec.time[0]), abscissa_inc=dt,
-                data=np.asarray(y, dtype=float), x=np.asarray(rec.time, dtype=float))
+            ds = {"type": 58, "binary": 0, "id1": col, "id2": str(rec.name)[:80],
+                  "func_type": 1, "rsp_node": k + 1, "rsp_dir": 1,
+                  "rsp_ent_name": dof[:10] or "dof", "ref_node": 0, "ref_dir": 0,
+                  "ordinate_spec_data_type": QUANTITY_ORDINATE.get(qty, 0),
+                  "orddenom_spec_data_type": 0, "abscissa_spec_data_type": 17,
+                  "abscissa_spacing": 1, "abscissa_min": float(rec.time[0]),
+                  "abscissa_inc": dt, "data": np.asarray(y, dtype=float),
+                  "x": np.asarray(rec.time, dtype=float)}
             uff.write_sets(ds, mode="add")
         with open(path, "rb") as fh:
             return fh.read()
