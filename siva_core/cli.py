@@ -10,10 +10,13 @@ import sys
 from typing import Sequence
 
 
-def _common_fit_args(p: argparse.ArgumentParser) -> None:
+def _common_fit_args(p: argparse.ArgumentParser, val_required: bool = True) -> None:
     p.add_argument("model", help="model spec (TOML or JSON)")
     p.add_argument("--train", nargs="+", required=True, metavar="CSV", help="training records")
-    p.add_argument("--val", nargs="+", required=True, metavar="CSV", help="validation records")
+    p.add_argument("--val", nargs="+", required=val_required, metavar="CSV",
+                   help="validation records" + ("" if val_required else
+                        " (default: hold out the last training record, or the last 25 %% "
+                        "of a single one, and say so)"))
     p.add_argument("--out", help="write JSON here instead of stdout")
     p.add_argument("--seed", type=int, default=42)
     p.add_argument("--processing", default="auto",
@@ -26,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("identify", help="identify parameters with SIVA (Approaches I-III)")
-    _common_fit_args(p)
+    _common_fit_args(p, val_required=False)
     p.add_argument("--epochs", type=int, default=None, help="max epochs (default: until converged)")
     p.add_argument("--preset", choices=["fast", "paper"], default="fast")
     p.add_argument("--report", metavar="DIR", help="also write the paper's figures here")

@@ -18,6 +18,7 @@ import numpy as np
 
 from .ensemble import normal_summary
 from .processing import Processing
+from .progress import Eta
 from .recording import Recording
 from .structure import Structure
 from .training import SivaSettings, SivaTrainer
@@ -252,11 +253,12 @@ class Siva:
         trainer = SivaTrainer(st, settings)
         trainer.set_data(self.train_states_, self.val_states_)
         t0 = time.perf_counter()
+        eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
         while trainer.epoch < settings.max_epochs:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(names, log.theta))
-                self._say(f"epoch {log.epoch:4d}  D={log.loss_d:.4f} (ln4=1.3863)  "
+                self._say(f"{eta.text(log.epoch + 1)}  D={log.loss_d:.4f} (ln4=1.3863)  "
                           f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
                           f"{'converged ' if log.converged else ''}{rel}")
             if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
