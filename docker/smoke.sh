@@ -102,7 +102,7 @@ say "/healthz 200"
 
 # ---------------------------------------------------------------- data: made by the image
 chmod 777 "$WORK"
-docker run --rm -v "$ROOT/examples/models:/models:ro" -v "$WORK:/work" "$IMAGE" python - <<'PY'
+docker run --rm -i -v "$ROOT/examples/models:/models:ro" -v "$WORK:/work" "$IMAGE" python - <<'PY' || fail "making the test data in the image"
 import json, tomllib
 import numpy as np
 from scipy.integrate import solve_ivp
