@@ -108,7 +108,7 @@ def watch_drift(client: SivaClient, name: str, interval: float, count: int, out:
     """Follow the drift report.  JSON: one line per new history entry and alarm.  Text: on a
     terminal the table is redrawn in place; otherwise new rows (and alarms) are appended."""
     seen_h, seen_a, polls = 0, 0, 0
-    header_done = False
+    widths: list[int] | None = None
     tty = hasattr(out, "isatty") and out.isatty()
     while True:
         d = client.drift(name)
@@ -127,14 +127,12 @@ def watch_drift(client: SivaClient, name: str, interval: float, count: int, out:
         else:
             params = render.drift_params(d)
             new_rows = render.drift_rows(hist[seen_h:], params)
-            if new_rows and not header_done:
-                head = render.table(render.drift_header(params, units or {}), new_rows)
-                out.write(head + "\n")
-                header_done = True
-            elif new_rows:
-                widths_from = render.table(render.drift_header(params, units or {}),
-                                           render.drift_rows(hist[-len(new_rows) - 1:], params))
-                out.write("\n".join(widths_from.splitlines()[-len(new_rows):]) + "\n")
+            if new_rows and widths is None:
+                header = render.drift_header(params, units or {})
+                widths = render.stream_widths(header)
+                out.write(render.table(header, [], widths) + "\n")
+            for r in new_rows:
+                out.write(render.row(r, widths) + "\n")
             for a in alarms[seen_a:]:
                 if isinstance(a, dict):
                     out.write(f"ALARM {a.get('parameter')}: {a.get('message', '')}\n")

@@ -56,20 +56,29 @@ def num(x: Any, digits: int = 4) -> str:
     return f"{v:.{digits - 1}e}"
 
 
-def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """Columns padded to their widest cell; numbers right-aligned."""
-    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)] if rows else \
-        [len(h) for h in header]
+def row(cells: Sequence[str], widths: Sequence[int]) -> str:
+    """One table line: cells padded to ``widths``, numbers right-aligned."""
+    out = []
+    for i, c in enumerate(cells):
+        c = str(c)
+        numeric = bool(c) and (c[0].isdigit() or c[0] in "-+–[")
+        out.append(c.rjust(widths[i]) if numeric else c.ljust(widths[i]))
+    return "  ".join(out).rstrip()
 
-    def line(cells: Sequence[str]) -> str:
-        out = []
-        for i, c in enumerate(cells):
-            c = str(c)
-            numeric = bool(c) and (c[0].isdigit() or c[0] in "-+–[") and i > 0
-            out.append(c.rjust(widths[i]) if numeric else c.ljust(widths[i]))
-        return "  ".join(out).rstrip()
 
-    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+def table(header: Sequence[str], rows: Sequence[Sequence[str]],
+          widths: Sequence[int] | None = None) -> str:
+    """Columns padded to their widest cell (or to ``widths``), with a rule under the header."""
+    if widths is None:
+        widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)] if rows else \
+            [len(h) for h in header]
+    return "\n".join([row(header, widths), row(["-" * w for w in widths], widths),
+                      *(row(r, widths) for r in rows)])
+
+
+def stream_widths(header: Sequence[str]) -> list[int]:
+    """Fixed widths for a table printed row by row (``drift --watch`` to a file or pipe)."""
+    return [max(len(h), 9) for h in header]
 
 
 def _interval(ci: Any) -> str:
