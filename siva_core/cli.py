@@ -32,6 +32,10 @@ def build_parser() -> argparse.ArgumentParser:
     _common_fit_args(p, val_required=False)
     p.add_argument("--epochs", type=int, default=None, help="max epochs (default: until converged)")
     p.add_argument("--preset", choices=["fast", "paper"], default="fast")
+    p.add_argument("--fit-target", choices=["output", "equation"], default=None,
+                   help="what SIVA's generator is judged on: the output error through the "
+                        "processing chain (default; unbiased on measured data) or the paper's "
+                        "equation error (default of --preset paper)")
     p.add_argument("--report", metavar="DIR", help="also write the paper's figures here")
     p.add_argument("--no-baselines", action="store_true", help="skip least squares and SINDy")
 

@@ -23,7 +23,7 @@ def identify_command(args: argparse.Namespace) -> int:
         _progress(f"no --val: {held_out}")
     est = Siva(structure, processing=args.processing, preset=args.preset, seed=args.seed,
                max_epochs=args.epochs, baselines=not args.no_baselines,
-               progress=progress).fit(train, val)
+               progress=progress, fit_target=getattr(args, "fit_target", None)).fit(train, val)
     result = est.result_
     if held_out:
         result.notes.append(f"validation held out automatically: {held_out}")
