@@ -384,11 +384,12 @@ class Siva:
         start = trainer.epoch
         limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
                             settings.max_epochs // 2) + settings.ensemble_epochs
+        eta = Eta(limit, start=start)  # an upper bound again
         while trainer.epoch < limit:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
-                self._say(f"epoch {log.epoch:4d}  [output error]  D={log.loss_d:.4f}  "
+                self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
                           f"fit={log.loss_mse:.3e}  {'converged ' if log.converged else ''}{rel}")
             if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
                 break
