@@ -105,6 +105,7 @@ def test_bomb_refused_with_bounded_memory(bombs, fmt):
     assert growth < 200
 
 
+@pytest.mark.slow  # ~10 s and ~1 GB for a moment: the control, not the guard
 def test_the_memory_measurement_sees_an_unguarded_read(bombs):
     """Control: with the limit lifted the same NPZ bomb is decompressed (> 400 MB growth), so
     the measurement above can fail."""
