@@ -35,3 +35,14 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) siva-data .pytest_cache
+
+.PHONY: constraints docker-smoke
+
+# docker/constraints.txt: the versions of the working venv, used by the Docker build
+constraints: $(STAMP)
+	( sed -n '1,2p' docker/constraints.txt; $(BIN)/pip freeze --exclude-editable ) > docker/constraints.new
+	mv docker/constraints.new docker/constraints.txt
+
+# build the image on $(BASE_IMAGE) and smoke-test the container (docker/smoke.sh says how)
+docker-smoke:
+	bash docker/smoke.sh

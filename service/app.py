@@ -22,6 +22,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from siva_core import RecordingError, SpecError, Structure
+from siva_core import RecordingTooLarge
 
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
@@ -181,6 +182,8 @@ class SivaService:
         w = self.worker(name)
         try:
             info = parse_upload(w.structure, raw, fmt, filename)
+        except RecordingTooLarge as exc:
+            raise ApiError(413, str(exc)) from None
         except RecordingError as exc:
             raise ApiError(422, str(exc)) from None
         try:

@@ -56,6 +56,10 @@ def serve_command(args: argparse.Namespace) -> int:
     if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
         data_dir = None  # the parser's default: let the environment decide
     settings = Settings.from_env(data_dir=data_dir)
+    if os.environ.get("SIVA_REQUIRE_TOKEN", "0").strip() not in ("", "0") and not settings.api_token:
+        log.error("SIVA_REQUIRE_TOKEN is set but SIVA_API_TOKEN is not: refusing to serve an "
+                  "open API (set SIVA_API_TOKEN, or SIVA_REQUIRE_TOKEN=0 to run without one)")
+        return 2
     app = create_app(settings)
     if getattr(args, "demo", False):
         _start_demo(args.host, args.port, settings)

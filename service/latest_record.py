@@ -67,8 +67,7 @@ def compute_latest(structure: Structure, rec: Recording, processing: Processing 
                    theta: Mapping[str, float]) -> dict[str, Any]:
     """Measured vs simulated displacement [mm] of ``rec`` with ``theta``, the residual,
     the spectra of both, and the CWT (max 1) of the measured and simulated responses."""
-    from siva_core._impl.refine import OutputErrorProblem
-    from siva_core._impl.spectra import cwt, fourier_amplitude, frequency_band
+    from siva_core import OutputErrorProblem, cwt, fourier_amplitude, frequency_band
 
     th = np.array([[theta[p] for p in structure.free]], dtype=float)
     prob = OutputErrorProblem.build(structure, [rec], processing or Processing(),

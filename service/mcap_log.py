@@ -46,6 +46,8 @@ from mcap.stream_reader import MAGIC_SIZE, StreamReader
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
+from siva_core import MCAP_MAGIC
+
 log = logging.getLogger("siva.mcap_log")
 
 FORMAT_VERSION = "siva-log/1"
@@ -53,7 +55,7 @@ TOPIC_SPEC = "/siva/spec"
 TOPIC_RECORDING = "/siva/recording"
 TOPIC_DATASET = "/siva/dataset"
 TOPIC_SNAPSHOT = "/siva/snapshot"
-MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
+MAGIC = MCAP_MAGIC
 _FOOTER_OPCODE = 0x02
 _FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
 

@@ -281,8 +281,24 @@ class _Replayer:
         return trainer, last_log
 
 
-def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None
-           ) -> dict[str, Any]:
+def _counting(factory: Any, progress: Any) -> Any:
+    """``factory`` whose trainers report each epoch to ``progress.update(epoch)``."""
+    def make(*args: Any) -> Any:
+        trainer = factory(*args)
+        run_epoch = trainer.run_epoch
+
+        def counted() -> Any:
+            log = run_epoch()
+            progress.update(trainer.epoch)
+            return log
+
+        trainer.run_epoch = counted
+        return trainer
+    return make
+
+
+def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None,
+           progress: bool = False) -> dict[str, Any]:
     """Re-run the log(s) and return the final estimate in the shape of GET .../estimate.
 
     Extra key ``replay``: the files, the epochs trained, and how the result compares with
@@ -294,6 +310,10 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     files = log_files(path)
     plan = _plan(files)
     rp = _Replayer(plan, trainer_factory)
+    if progress:  # stderr lines "replay: epoch 120/600 (20 %), ..., ETA 14 s"
+        from siva_core import EpochProgress
+
+        rp.factory = _counting(rp.factory, EpochProgress("replay", plan.final_epoch))
     trainer, _last = rp.run()
     if trainer is None:
         raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
@@ -337,7 +357,7 @@ def write_replay(log: str | Path, out: str | Path | None = None) -> dict[str, An
     import json
     import sys
 
-    result = replay(log)
+    result = replay(log, progress=True)
     text = json.dumps(result, indent=2)
     if out:
         Path(out).write_text(text + "\n")

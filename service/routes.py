@@ -18,6 +18,8 @@ from starlette.datastructures import UploadFile
 from .app import ApiError, SivaService, UploadTooLarge
 from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                       RecordingList, SystemAck, SystemList, SystemSpec)
+from siva_core import media_types, resolve_format
+
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
 from .worker import estimate_view
 
@@ -33,13 +35,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
         422: "invalid spec, recording or parameter; the detail names what and where",
     }.items()}
 
-CONTENT_FORMATS = {
-    "text/csv": "csv", "application/csv": "csv", "text/plain": "csv",
-    "application/json": "json", "text/json": "json",
-    "application/x-npz": "npz", "application/npz": "npz",
-    "application/x-mcap": "mcap", "application/mcap": "mcap",
-}
-MCAP_MAGIC = b"\x89MCAP0\r\n"
+CONTENT_FORMATS = media_types()
 
 
 def service_of(request: Request) -> SivaService:
@@ -194,9 +190,8 @@ async def post_recording(
         fmt = fmt or _format_of(part_type, part_name, raw)
     else:
         if media and media not in CONTENT_FORMATS and media != "application/octet-stream":
-            raise ApiError(415, f"Content-Type {media!r} is not a recording format (text/csv, "
-                                "application/json, multipart/form-data, application/x-mcap, "
-                                "application/x-npz)")
+            raise ApiError(415, f"Content-Type {media!r} is not a recording format "
+                                f"({', '.join(CONTENT_FORMATS)}, multipart/form-data)")
         raw = await request.body()
         fmt = fmt or _format_of(media, filename, raw)
     filename = filename or f"upload.{fmt}"
@@ -227,21 +222,7 @@ def _format(fmt: str) -> str:
 
 def _format_of(media: str | None, filename: str | None, raw: bytes) -> str:
     """Format from the Content-Type, else the file suffix, else sniffing the bytes."""
-    if media and media in CONTENT_FORMATS:
-        return CONTENT_FORMATS[media]
-    if filename and "." in filename:
-        suffix = filename.rsplit(".", 1)[1].lower()
-        if suffix in FORMATS:
-            return suffix
-        if suffix == "txt":
-            return "csv"
-    if raw.startswith(MCAP_MAGIC):
-        return "mcap"
-    if raw.startswith(b"PK\x03\x04"):
-        return "npz"
-    if raw.lstrip()[:1] == b"{":
-        return "json"
-    return "csv"
+    return resolve_format(media, filename, raw)
 
 
 async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, Any]:

@@ -31,12 +31,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterable, Literal
 
+from siva_core import RECORDING_FORMATS as REGISTRY
+
 log = logging.getLogger("siva.service.store")
 
 Role = Literal["train", "validation"]
 ROLES: tuple[str, ...] = ("train", "validation")
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
-FORMATS = ("csv", "json", "npz", "mcap")
+FORMATS = tuple(REGISTRY)  # every registered recording format
 
 
 class StoreError(Exception):

@@ -7,8 +7,10 @@ not pay for torch, scipy or numba until something needs them.
 Model and data
     :class:`Structure` (a model from a spec), :class:`SpecError`, :class:`ElementKind`,
     :func:`register_element`, :data:`ELEMENT_KINDS` (the registry);
-    :class:`Recording`, :class:`RecordingError`, :func:`read_mcap_recording`,
-    :func:`write_mcap_recording`, :func:`mcap_bytes`.
+    :class:`Recording` (CSV / JSON / NPZ / MCAP / LVM / UFF58 / TDMS / MAT),
+    :class:`RecordingError`, :class:`RecordingTooLarge`, :func:`register_format`,
+    :func:`sniff_format`, :func:`read_mcap_recording`, :func:`write_mcap_recording`,
+    :func:`mcap_bytes`.
 Processing
     :class:`Processing` (the chain) -> :class:`States`; :func:`simulated_recording`,
     :func:`central_difference`; :func:`detect_impulse` / :class:`Impulse` (the one rule
@@ -53,6 +55,9 @@ def _export(module: str, *names: str, **renamed: str) -> None:
 _export("structure", "Structure", "SpecError")
 _export("elements", "ElementKind", "register_element", ELEMENT_KINDS="REGISTRY")
 _export("recording", "Recording", "RecordingError")
+_export("formats", "RecordingTooLarge", "register_format", "sniff_format", "resolve_format",
+        "media_types", "MCAP_MAGIC", "ReadLimits", RECORDING_FORMATS="REGISTRY")
+_export("progress", "Eta", "EpochProgress")
 _export("mcap_recording", "read_mcap_recording", "write_mcap_recording", "mcap_bytes")
 _export("processing", "Processing", "States", "simulated_recording", "central_difference")
 _export("impulse", "detect_impulse", "Impulse")
@@ -103,6 +108,10 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.mcap_recording import mcap_bytes, read_mcap_recording, write_mcap_recording
     from ._impl.processing import Processing, States, central_difference, simulated_recording
     from ._impl.recording import Recording, RecordingError
+    from ._impl.formats import REGISTRY as RECORDING_FORMATS
+    from ._impl.formats import (MCAP_MAGIC, ReadLimits, RecordingTooLarge, media_types,
+                                register_format, resolve_format, sniff_format)
+    from ._impl.progress import EpochProgress, Eta
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                output_error, refine)
     from ._impl.report import write_report

@@ -29,10 +29,13 @@ class Command:
         return getattr(importlib.import_module(module), func)
 
 
-def _common_fit_args(p: argparse.ArgumentParser) -> None:
+def _common_fit_args(p: argparse.ArgumentParser, val_required: bool = True) -> None:
     p.add_argument("model", help="model spec (TOML or JSON)")
     p.add_argument("--train", nargs="+", required=True, metavar="CSV", help="training records")
-    p.add_argument("--val", nargs="+", required=True, metavar="CSV", help="validation records")
+    p.add_argument("--val", nargs="+", required=val_required, metavar="CSV",
+                   help="validation records" + ("" if val_required else
+                        " (default: hold out the last training record, or the last 25 %% "
+                        "of a single one, and say so)"))
     p.add_argument("--out", help="write JSON here instead of stdout")
     p.add_argument("--seed", type=int, default=42)
     p.add_argument("--processing", default="auto",
@@ -41,7 +44,7 @@ def _common_fit_args(p: argparse.ArgumentParser) -> None:
 
 
 def _identify_args(p: argparse.ArgumentParser) -> None:
-    _common_fit_args(p)
+    _common_fit_args(p, val_required=False)
     p.add_argument("--epochs", type=int, default=None, help="max epochs (default: until converged)")
     p.add_argument("--preset", choices=["fast", "paper"], default="fast")
     p.add_argument("--fit-target", choices=["output", "equation"], default=None,

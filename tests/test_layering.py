@@ -23,6 +23,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_report.py": {"siva_core._impl.report": "the report's record helpers"},
     "tests/test_uncertainty.py": {"siva_core._impl.bootstrap": "the bootstrap's internals",
                                   "siva_core._impl.validation": "the noise estimator"},
+    "tests/test_identify_holdout.py": {"siva_core._impl.commands": "the hold-out rule"},
     "tests/test_diagnose.py": {"siva_core._impl.diagnose": "the diagnosis' steps",
                                "siva_core._impl.effects": "effect amplitudes"},
 }

@@ -19,6 +19,7 @@ import numpy as np
 from .ensemble import normal_summary
 from .refine import NUMERICAL_REL_STD
 from .processing import Processing
+from .progress import Eta
 from .recording import Recording
 from .structure import Structure
 from .training import SivaSettings, SivaTrainer
@@ -273,11 +274,12 @@ class Siva:
         trainer = SivaTrainer(st, settings)
         trainer.set_data(self.train_states_, self.val_states_)
         t0 = time.perf_counter()
+        eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
         while trainer.epoch < settings.max_epochs:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(names, log.theta))
-                self._say(f"epoch {log.epoch:4d}  D={log.loss_d:.4f} (ln4=1.3863)  "
+                self._say(f"{eta.text(log.epoch + 1)}  D={log.loss_d:.4f} (ln4=1.3863)  "
                           f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
                           f"{'converged ' if log.converged else ''}{rel}")
             if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
@@ -382,11 +384,12 @@ class Siva:
         start = trainer.epoch
         limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
                             settings.max_epochs // 2) + settings.ensemble_epochs
+        eta = Eta(limit, start=start)  # an upper bound again
         while trainer.epoch < limit:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
-                self._say(f"epoch {log.epoch:4d}  [output error]  D={log.loss_d:.4f}  "
+                self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
                           f"fit={log.loss_mse:.3e}  {'converged ' if log.converged else ''}{rel}")
             if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
                 break
