@@ -244,7 +244,7 @@ class _Replayer:
         does, on all selected records) applied to each record."""
         from siva_core._impl.processing import Processing
 
-        from .worker import processing_for
+        from .uploads import processing_for
 
         train, val = ds.train, ds.validation
         recs = [self.recording(i) for i in train + val]
@@ -289,7 +289,7 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     the last snapshot the live service logged (``max_diff_in_std``: the largest difference
     of a parameter mean, in units of that parameter's std; 0 when identical).
     """
-    from .worker import estimate_parameters, estimate_view, jsonable
+    from .estimate import estimate_parameters, estimate_view, jsonable
 
     files = log_files(path)
     plan = _plan(files)

@@ -8,18 +8,21 @@ from __future__ import annotations
 import hmac
 import json
 import tomllib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from .app import ApiError, SivaService, UploadTooLarge
+from .errors import ApiError, UploadTooLarge
 from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                       RecordingList, SystemAck, SystemList, SystemSpec)
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
-from .worker import estimate_view
+from .estimate import estimate_view
+
+if TYPE_CHECKING:  # the app imports this module; at run time the request holds the service
+    from .app import SivaService
 
 router = APIRouter()
 
@@ -42,7 +45,7 @@ CONTENT_FORMATS = {
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def service_of(request: Request) -> SivaService:
+def service_of(request: Request) -> "SivaService":
     return request.app.state.service
 
 

@@ -14,26 +14,18 @@ a snapshot every ``snapshot_every`` epochs and checkpointing (atomically, torch.
 record it sleeps.  A trainer exception is logged, shown in the snapshot, and retried after
 a back-off; it never kills the thread.
 
-``best`` (the recommended value of ``Siva.fit``: Approach III over the ensemble, then the
-output-error refinement, ``siva_core._impl.siva.recommend_best``) is computed by a second
-thread per system, the refiner, so that neither training nor reads ever wait for it.  Once
-converged, the trainer thread hands it a job (a copy of the ensemble's last samples, the
-ids of the most recent training records and the processing chain) whenever the data set
-changed since the last job, and otherwise at most every ``refine_every_s`` seconds; the
-refiner re-parses those records from the store and publishes the result into the snapshot.
-A result computed on a data set that has since been replaced is dropped.  The refiner only
-reads copies: the trainer's state and random generators are untouched, so ``siva replay``
-still reproduces the trainer exactly (``best`` itself is not replayed).
+``best`` is computed by a second thread per system (service/refiner.py), so that
+neither training nor reads ever wait for it.  Once converged, the trainer thread hands it
+a job whenever the data set changed since the last job, and otherwise at most every
+``refine_every_s`` seconds.  A result computed on a data set that has since been replaced
+is dropped.
 """
 from __future__ import annotations
 
-import csv
 import logging
-import math
 import threading
 import time
-from dataclasses import asdict, is_dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
@@ -41,79 +33,22 @@ from siva_core._impl.processing import Processing, States
 from siva_core._impl.recording import Recording, RecordingError
 from siva_core._impl.structure import Structure
 
+from .checkpoints import CHECKPOINT_VERSION, checkpoint_state, matches
 from .drift import DriftMonitor, DriftRule, modal_quantities
+from .estimate import estimate_parameters, estimate_view, jsonable
+from .refiner import Refiner
 from .settings import Settings
 from .store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
+from .uploads import parse_upload, processing_for
 
 log = logging.getLogger("siva.service.worker")
 
-#: one refinement at a time in the process (they are CPU-heavy and use numba's threads)
-_REFINE_LOCK = threading.Lock()
 #: ensemble epochs on the current data set needed before a refinement starts from them
 REFINE_MIN_SAMPLES = 10
 
-CHECKPOINT_VERSION = 1
-
-
-# --------------------------------------------------------------------------- helpers
-def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:
-    """The processing chain for these records: ``Processing.auto`` when available."""
-    auto = getattr(Processing, "auto", None)
-    if auto is None or not recordings:
-        return Processing()
-    return auto(list(recordings), list(dofs))
-
-
-def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str) -> dict[str, Any]:
-    """Validate an upload exactly as the worker will use it; returns facts for the meta.
-
-    Raises RecordingError (a 4xx) for anything unusable, including a record the processing
-    chain cannot handle (e.g. too short for its filters), so nothing unusable is stored.
-    """
-    import warnings
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            rec = Recording.read(raw, structure.dofs, name=name, fmt=fmt)
-        except RecordingError:
-            raise
-        except ImportError as exc:
-            raise RecordingError(f"{name}: format {fmt!r} is not supported here ({exc})") from None
-        except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError,
-                csv.Error) as exc:
-            # garbage the reader did not anticipate is still the upload's fault, not a 5xx
-            raise RecordingError(f"{name}: unreadable {fmt} ({type(exc).__name__}: "
-                                 f"{str(exc)[:200]})") from None
-    try:
-        proc = processing_for([rec], structure.dofs)
-        st = proc.apply(rec, structure.dofs)
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-        raise RecordingError(f"{name}: cannot be processed ({exc})") from None
-    if len(st) < 2 or not all(np.isfinite(x).all() for x in (st.q, st.v, st.a, st.f)):
-        raise RecordingError(f"{name}: processing leaves no usable (finite) samples")
-    return {"n_samples": len(rec), "fs": rec.fs, "duration_s": float(rec.time[-1] - rec.time[0]),
-            "columns": ["time", *rec.channels], "warnings": [str(w.message) for w in caught]}
-
-
-def jsonable(x: Any) -> Any:
-    """Plain JSON types; NaN/inf become None (JSON has no NaN, and a 500 is not an option)."""
-    if isinstance(x, Mapping):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    if is_dataclass(x) and not isinstance(x, type):
-        return jsonable(asdict(x))
-    return x
+__all__ = ["SystemWorker", "default_trainer", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
+           # moved to their own modules; re-exported for existing imports
+           "parse_upload", "processing_for", "estimate_view", "estimate_parameters", "jsonable"]
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -149,17 +84,17 @@ class SystemWorker:
         self._dirty = threading.Event()
         self._dirty.set()
         self._thread = threading.Thread(target=self._run, name=f"siva-trainer-{name}", daemon=True)
-        # refinement (``best``): a job slot filled by the trainer thread, emptied by the refiner
+        # refinement (``best``): the refiner thread fills it through ``_set_best``
         self._snap_lock = threading.Lock()
-        self._refine_cv = threading.Condition()
-        self._refine_job: dict[str, Any] | None = None
         self._refine_offered: tuple[int, float] | None = None  # (data version, monotonic)
         self._data_version = 0
         self._data_epoch = 0
         self._best: dict[str, Any] | None = None
         self._best_error: str | None = None
-        self._refiner = (threading.Thread(target=self._refine_loop, name=f"siva-refine-{name}",
-                                          daemon=True) if settings.refine_every_s > 0 else None)
+        self._refiner = (Refiner(name, structure, store,
+                                 is_current=lambda v: v == self._data_version,
+                                 on_result=self._set_best, on_error=self._set_best_error)
+                         if settings.refine_every_s > 0 else None)
         self.trainer: Any = None
         self.epoch = 0
         self.checkpoint_epoch: int | None = None
@@ -201,14 +136,13 @@ class SystemWorker:
         """Stop after the current epoch; the thread writes a final checkpoint."""
         self._stop.set()
         self._wake.set()
-        with self._refine_cv:
-            self._refine_cv.notify_all()
         t0 = time.monotonic()
+        if self._refiner is not None:
+            self._refiner.request_stop()
         if self._thread.is_alive():
             self._thread.join(timeout)
-        if self._refiner is not None and self._refiner.is_alive():
-            # a refinement cannot be interrupted; its result is simply dropped (daemon thread)
-            self._refiner.join(max(0.0, min(5.0, timeout - (time.monotonic() - t0))))
+        if self._refiner is not None:
+            self._refiner.stop(min(5.0, timeout - (time.monotonic() - t0)))
 
     @property
     def alive(self) -> bool:
@@ -307,7 +241,7 @@ class SystemWorker:
         self.trainer = self._factory(self.structure, self.settings)
         ckpt = self.store.load_checkpoint(self.name)
         if ckpt is not None:
-            if ckpt.get("version") != CHECKPOINT_VERSION or ckpt.get("spec") != self.structure.spec:
+            if not matches(ckpt, self.structure.spec):
                 log.warning("%s: checkpoint does not match this spec/version; starting fresh",
                             self.name)
             else:
@@ -519,72 +453,23 @@ class SystemWorker:
                "train": list(self._train_ids[-self.settings.refine_max_records:]),
                "processing": self._proc}
         self._refine_offered = (self._data_version, now)
-        with self._refine_cv:
-            self._refine_job = job  # a job not yet started is superseded by this one
-            self._refine_cv.notify_all()
+        self._refiner.submit(job)
 
-    def _refine_loop(self) -> None:
-        while not self._stop.is_set():
-            with self._refine_cv:
-                while self._refine_job is None and not self._stop.is_set():
-                    self._refine_cv.wait(1.0)
-                job, self._refine_job = self._refine_job, None
-            if job is None or self._stop.is_set():
-                continue
-            try:
-                best = self._refine(job)
-            except Exception as exc:  # noqa: BLE001 - never kills the thread or the service
-                log.exception("%s: refinement failed", self.name)
-                self._best_error = f"refinement failed: {type(exc).__name__}: {exc}"
-                continue
-            if best is None:
-                continue
-            with self._snap_lock:
-                if job["version"] != self._data_version:  # a newer data set supersedes it
-                    log.info("%s: refinement of data set %d superseded; result dropped",
-                             self.name, job["version"])
-                    continue
-                self._best = best
-                self._best_error = None
-                snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
-                snap["best"] = best
-                self._snapshot = snap
+    def _set_best(self, best: dict[str, Any], job: dict[str, Any]) -> None:
+        """Refiner thread: publish ``best`` unless a newer data set superseded its job."""
+        with self._snap_lock:
+            if job["version"] != self._data_version:
+                log.info("%s: refinement of data set %d superseded; result dropped",
+                         self.name, job["version"])
+                return
+            self._best = best
+            self._best_error = None
+            snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
+            snap["best"] = best
+            self._snapshot = snap
 
-    def _refine(self, job: dict[str, Any]) -> dict[str, Any] | None:
-        """Refiner thread: ``recommend_best`` on the job's records, re-parsed from the store.
-        None when the data set changed meanwhile (a newer job follows) or the service stops."""
-        from siva_core._impl.siva import recommend_best
-
-        t0 = time.perf_counter()
-        by_id = {m.id: m for m in self.store.recordings(self.name)}
-        recs = []
-        for rid in job["train"]:
-            meta = by_id.get(rid)
-            if meta is None:
-                return None  # deleted meanwhile
-            raw = self.store.read_raw(self.name, meta)
-            recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt))
-        proc = job["processing"] if job["processing"] is not None else Processing()
-        with _REFINE_LOCK:
-            if self._stop.is_set() or job["version"] != self._data_version:
-                return None
-            rec = recommend_best(self.structure, job["candidates"], recs, proc)
-        params: dict[str, Any] = {}
-        for k, p in enumerate(self.structure.free):
-            v = float(rec.theta[k])
-            s = None if rec.std is None else float(rec.std[k])
-            params[p] = {"value": v, "std": s,
-                         "ci95": None if s is None else [v - 1.96 * s, v + 1.96 * s]}
-        seconds = time.perf_counter() - t0
-        log.info("%s: best from %d candidates on %d record(s) in %.1f s (refined=%s, "
-                 "output error %.3g)", self.name, len(job["candidates"]), len(recs), seconds,
-                 rec.refined, rec.output_error if rec.output_error is not None else float("nan"))
-        return jsonable({
-            "parameters": params, "epoch": job["epoch"], "n_records": len(recs),
-            "time": time.time(), "output_error": rec.output_error,
-            "refined": rec.refined, "records": job["train"], "n_candidates": len(job["candidates"]),
-            "approach_III": self.structure.as_dict(rec.theta_III), "note": rec.note,
-            "seconds": seconds})
+    def _set_best_error(self, message: str) -> None:
+        self._best_error = message
 
     def _counts(self) -> dict[str, int]:
         try:
@@ -595,32 +480,13 @@ class SystemWorker:
     def _checkpoint(self) -> None:
         if self.trainer is None:
             return
-        state = {"version": CHECKPOINT_VERSION, "spec": self.structure.spec,
-                 "trainer": self.trainer.state_dict(),
-                 "drift": self.drift.state_dict(),
-                 "data": {"train": list(self._train_ids), "validation": list(self._val_ids)},
-                 "time": time.time()}
+        state = checkpoint_state(self.structure.spec, self.trainer, self.drift,
+                                 self._train_ids, self._val_ids)
         try:
             self.store.save_checkpoint(self.name, state)
         except UnknownSystem:
             return
         self.checkpoint_epoch = int(self.trainer.epoch)
-
-
-def estimate_view(snapshot: Mapping[str, Any], counts: Mapping[str, int]) -> dict[str, Any]:
-    """The GET .../estimate body: the contract's keys first, then everything else."""
-    out = {"parameters": {p: {"mean": s.get("mean"), "std": s.get("std"), "ci95": s.get("ci95"),
-                              **{k: v for k, v in s.items() if k not in ("mean", "std", "ci95")}}
-                          for p, s in snapshot.get("parameters", {}).items()},
-           "discriminator": snapshot.get("discriminator", {}),
-           "epoch": snapshot.get("epoch", 0),
-           "converged": snapshot.get("converged", False),
-           "n_recordings": {"train": int(counts.get("train", 0)),
-                            "validation": int(counts.get("validation", 0))}}
-    for k, v in snapshot.items():
-        if k not in out:
-            out[k] = v
-    return out
 
 
 def default_trainer(structure: Structure, settings: Settings) -> Any:
@@ -631,18 +497,3 @@ def default_trainer(structure: Structure, settings: Settings) -> Any:
     if preset is None:
         raise ValueError(f"unknown SIVA preset {settings.preset!r} (fast, paper)")
     return SivaTrainer(structure, preset(seed=settings.seed))
-
-
-def estimate_parameters(structure: Structure, tr: Any) -> tuple[dict[str, Any], str | None]:
-    """Parameters {mean, std, ci95, ess, n}: the Approach II ensemble once converged,
-    before that the spread of the generator's output (Approach I sampling).  Shared by the
-    live worker and ``siva replay`` so both read out the same way."""
-    free = structure.free
-    summary = tr.ensemble.summary(free) if len(tr.ensemble) >= 2 else {}
-    if summary:
-        return summary, "approach_II"
-    if tr.epoch == 0 or not getattr(tr, "initialised", True):
-        return {}, None
-    from siva_core._impl.ensemble import normal_summary
-
-    return normal_summary(tr.sample(256), free, ess=False), "generator"

@@ -99,7 +99,7 @@ def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
 def duffing_problem(spec_of):
     from siva_core import Recording, Structure
 
-    from service.worker import processing_for
+    from service.uploads import processing_for
 
     st = Structure.from_dict(spec_of("duffing"))
     path = DUFFING_DIR / "train_v5.csv"

@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-DUFFING = ROOT.parent / "shared" / "data" / "duffing"
+DUFFING = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
 
 from clients import SivaClient, SivaClientError  # noqa: E402
