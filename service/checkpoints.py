@@ -12,9 +12,11 @@ CHECKPOINT_VERSION = 1
 
 
 def checkpoint_state(spec: Mapping[str, Any], trainer: Any, drift: Any,
-                     train_ids: Sequence[str], val_ids: Sequence[str]) -> dict[str, Any]:
-    """The dict ``Store.save_checkpoint`` writes (torch.save, atomically)."""
-    return {"version": CHECKPOINT_VERSION, "spec": spec,
+                     train_ids: Sequence[str], val_ids: Sequence[str],
+                     extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The dict ``Store.save_checkpoint`` writes (torch.save, atomically); ``extra``:
+    more keys (the monitor's state, the first ``best``)."""
+    return {**(extra or {}), "version": CHECKPOINT_VERSION, "spec": spec,
             "trainer": trainer.state_dict(),
             "drift": drift.state_dict(),
             "data": {"train": list(train_ids), "validation": list(val_ids)},

@@ -1,5 +1,8 @@
 """The refiner thread: ``best``, the output-error refinement, off the trainer's thread.
 
+It also runs ``step`` (the worker's per-record monitoring) whenever poked, until there is
+nothing left to do; then it sleeps without polling.
+
 Why a second thread per system: ``recommend_best`` (Approach III over the ensemble, then
 the output-error refinement, ``siva_core._impl.siva.recommend_best``) takes seconds to
 minutes, and neither training nor reads may wait for it.  The trainer hands it a job (a
@@ -35,13 +38,16 @@ class Refiner:
     def __init__(self, name: str, structure: Structure, store: Store, *,
                  is_current: Callable[[int], bool],
                  on_result: Callable[[dict[str, Any], dict[str, Any]], None],
-                 on_error: Callable[[str], None]) -> None:
+                 on_error: Callable[[str], None],
+                 step: Callable[[], bool] | None = None) -> None:
         self.name = name
         self.structure = structure
         self.store = store
         self._is_current = is_current
         self._on_result = on_result
         self._on_error = on_error
+        self._step = step
+        self._poked = True  # look for work once at start
         self._stop = threading.Event()
         self._cv = threading.Condition()
         self._job: dict[str, Any] | None = None
@@ -65,6 +71,12 @@ class Refiner:
     def is_alive(self) -> bool:
         return self._thread.is_alive()
 
+    def poke(self) -> None:
+        """New records are stored: run ``step`` until it has nothing left to do."""
+        with self._cv:
+            self._poked = True
+            self._cv.notify_all()
+
     def submit(self, job: dict[str, Any]) -> None:
         """Queue ``job`` (keys: version, epoch, candidates, train, processing)."""
         with self._cv:
@@ -74,19 +86,29 @@ class Refiner:
     def _loop(self) -> None:
         while not self._stop.is_set():
             with self._cv:
-                while self._job is None and not self._stop.is_set():
-                    self._cv.wait(1.0)
+                while self._job is None and not self._poked and not self._stop.is_set():
+                    self._cv.wait(30.0)
                 job, self._job = self._job, None
-            if job is None or self._stop.is_set():
+                self._poked = False
+            if self._stop.is_set():
                 continue
-            try:
-                best = self.run(job)
-            except Exception as exc:  # noqa: BLE001 - never kills the thread or the service
-                log.exception("%s: refinement failed", self.name)
-                self._on_error(f"refinement failed: {type(exc).__name__}: {exc}")
-                continue
-            if best is not None:
-                self._on_result(best, job)
+            if job is not None:
+                try:
+                    best = self.run(job)
+                except Exception as exc:  # noqa: BLE001 - never kills the thread or the service
+                    log.exception("%s: refinement failed", self.name)
+                    self._on_error(f"refinement failed: {type(exc).__name__}: {exc}")
+                    best = None
+                if best is not None:
+                    self._on_result(best, job)
+            while self._step is not None and not self._stop.is_set():
+                try:
+                    if not self._step():
+                        break
+                except Exception as exc:  # noqa: BLE001 - a bad record must not stop monitoring
+                    log.exception("%s: monitoring step failed", self.name)
+                    self._on_error(f"monitoring failed: {type(exc).__name__}: {exc}")
+                    break
 
     def run(self, job: dict[str, Any]) -> dict[str, Any] | None:
         """``recommend_best`` on the job's records, re-parsed from the store.  None when the

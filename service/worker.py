@@ -14,11 +14,17 @@ a snapshot every ``snapshot_every`` epochs and checkpointing (atomically, torch.
 record it sleeps.  A trainer exception is logged, shown in the snapshot, and retried after
 a back-off; it never kills the thread.
 
-``best`` is computed by a second thread per system (service/refiner.py), so that
-neither training nor reads ever wait for it.  Once converged, the trainer thread hands it
-a job whenever the data set changed since the last job, and otherwise at most every
-``refine_every_s`` seconds.  A result computed on a data set that has since been replaced
-is dropped.
+``best`` and monitoring run in a second thread per system (service/refiner.py), so that
+neither training nor reads ever wait for them.  Once converged, the trainer thread hands it
+one job: the first ``best`` (``recommend_best`` on the ensemble).  From then on the refiner
+fits every stored record once, in arrival order (service/monitor.py: one output-error fit
+per record, warm-started from the headline); those fits give the headline estimate
+(``parameters``, ``estimate_source = "best"``) and the drift test (service/detector.py).
+Nothing is refitted on unchanged data.
+
+Idle: once converged, ``idle_after_epochs`` epochs after the last data change the trainer
+pauses (state ``idle``) until a new record arrives; with the refiner also waiting, an idle
+system uses no CPU.
 """
 from __future__ import annotations
 
@@ -34,9 +40,11 @@ from siva_core._impl.recording import Recording, RecordingError
 from siva_core._impl.structure import Structure
 
 from .checkpoints import CHECKPOINT_VERSION, checkpoint_state, matches
-from .drift import DriftMonitor, DriftRule, modal_quantities
-from .estimate import estimate_parameters, estimate_view, jsonable
-from .refiner import Refiner
+from .detector import DetectorSettings
+from .drift import EstimateHistory, modal_quantities
+from .estimate import estimate_parameters, estimate_view, headline, jsonable
+from .monitor import RecordMonitor
+from .refiner import REFINE_LOCK, Refiner
 from .settings import Settings
 from .store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
 from .uploads import parse_upload, processing_for
@@ -74,11 +82,17 @@ class SystemWorker:
         self._factory = trainer_factory or default_trainer
         self.buffer = ReplayBuffer(settings.replay_window, settings.replay_reservoir,
                                    settings.validation_window, f"{settings.seed}:{name}")
-        self.drift = DriftMonitor(structure.free, DriftRule(settings.drift_consecutive,
-                                                            settings.drift_rel_tol,
-                                                            settings.drift_reference_after),
-                                  settings.history_limit)
+        self.history = EstimateHistory(settings.history_limit)
+        self.monitor = RecordMonitor(structure, DetectorSettings(
+            baseline_records=settings.drift_baseline_records,
+            arl0_records=settings.drift_arl0_records,
+            min_rel_scatter=settings.drift_min_rel_scatter),
+            window=settings.headline_window, max_nfev=settings.record_max_nfev,
+            max_records=settings.history_limit)
+        self._monitor_view: dict[str, Any] = {"report": self.monitor.report(limit=0),
+                                              "best": None}
         self._drift_lock = threading.Lock()
+        self._monitor_lock = threading.Lock()  # the monitor changes under it (refiner, reset)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._dirty = threading.Event()
@@ -93,8 +107,10 @@ class SystemWorker:
         self._best_error: str | None = None
         self._refiner = (Refiner(name, structure, store,
                                  is_current=lambda v: v == self._data_version,
-                                 on_result=self._set_best, on_error=self._set_best_error)
+                                 on_result=self._set_best, on_error=self._set_best_error,
+                                 step=self._monitor_step)
                          if settings.refine_every_s > 0 else None)
+        self._idle_since_epoch: int | None = None
         self.trainer: Any = None
         self.epoch = 0
         self.checkpoint_epoch: int | None = None
@@ -131,6 +147,8 @@ class SystemWorker:
         """New recordings are in the store: pick them up before the next epoch."""
         self._dirty.set()
         self._wake.set()
+        if self._refiner is not None:
+            self._refiner.poke()
 
     def stop(self, timeout: float = 60.0) -> None:
         """Stop after the current epoch; the thread writes a final checkpoint."""
@@ -156,17 +174,26 @@ class SystemWorker:
         return self._drift_report
 
     def reset_drift(self) -> dict[str, Any]:
-        with self._drift_lock:
-            self.drift.reset()
-            self._drift_report = self._report()
+        """Forget baseline and alarms (after a repair): the next records form a new baseline.
+        Waits for a per-record fit in progress, so the reset is never half-applied."""
+        with self._monitor_lock:
+            self.monitor.reset()
+            with self._snap_lock:
+                self._update_monitor_view()
+                self._refresh_snapshot()
         return self._drift_report
 
     def _report(self) -> dict[str, Any]:
-        """The drift report, JSON-safe.  History entries are built from already JSON-safe
-        snapshots and never mutated, so only the rest needs converting (cheap per snapshot)."""
-        report = self.drift.report()
-        history = report.pop("history")
-        return {**jsonable(report), "history": history}
+        """The drift report, JSON-safe: the detector's rule, reference, alarm history and
+        per-record estimates (``records``), the headline, and the published estimates
+        (``history``, already JSON-safe and never mutated)."""
+        view = self._monitor_view
+        snap = getattr(self, "_snapshot", {}) or {}
+        return {**view["report"], "headline": {
+                    "parameters": snap.get("parameters", {}),
+                    "estimate_source": snap.get("estimate_source"),
+                    "estimate": snap.get("estimate"), "modal": snap.get("modal")},
+                "history": self.history.last()}
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
@@ -229,6 +256,9 @@ class SystemWorker:
                 last_ckpt = time.monotonic()
             if self.trainer.converged and self.settings.epoch_pause_s > 0:
                 self._stop.wait(self.settings.epoch_pause_s)
+            if self._should_idle():
+                self._idle()
+                last_ckpt = time.monotonic()
         if self.trainer is not None and self.trainer.epoch > 0:
             try:
                 if self._thetas:
@@ -236,6 +266,35 @@ class SystemWorker:
                 self._checkpoint()
             except Exception:  # noqa: BLE001
                 log.exception("%s: final checkpoint failed", self.name)
+
+    def _should_idle(self) -> bool:
+        """Converged, ``idle_after_epochs`` epochs on unchanged data, the first ``best``
+        asked for: more epochs would only re-sample the same posterior."""
+        n = self.settings.idle_after_epochs
+        tr = self.trainer
+        if n <= 0 or tr is None or not tr.converged or self._dirty.is_set():
+            return False
+        if self._idle_since_epoch is None:
+            self._idle_since_epoch = int(tr.epoch)
+        due = int(tr.epoch) - max(self._idle_since_epoch, self._data_epoch) >= n
+        return due and (self._refiner is None or self._refine_offered is not None
+                        or self._best is not None)
+
+    def _idle(self) -> None:
+        """Trainer thread: publish, checkpoint, then sleep until new data (or stop)."""
+        self._state = "idle"
+        if self._thetas:
+            self._publish(observe=True)
+        else:
+            self._publish()
+        self._checkpoint()
+        log.info("%s: idle at epoch %d (converged, data unchanged); resumes on new data",
+                 self.name, self.epoch)
+        while not self._stop.is_set() and not self._dirty.is_set():
+            self._wake.wait(60.0)
+            self._wake.clear()
+        self._idle_since_epoch = None
+        self._state = "converged"
 
     def _setup_trainer(self) -> None:
         self.trainer = self._factory(self.structure, self.settings)
@@ -248,12 +307,15 @@ class SystemWorker:
                 try:
                     self.trainer.load_state_dict(ckpt["trainer"])
                     with self._drift_lock:
-                        self.drift.load_state_dict(ckpt.get("drift", {}))
+                        self.history.load_state_dict(ckpt.get("drift", {}))
+                        self.monitor.load_state_dict(ckpt.get("monitor", {}))
+                        self._best = ckpt.get("best")
+                        self._update_monitor_view()
                 except Exception:  # noqa: BLE001 - e.g. a trainer of another version
                     log.exception("%s: checkpoint unusable; training starts over", self.name)
                     self.trainer = self._factory(self.structure, self.settings)
                     with self._drift_lock:
-                        self.drift.load_state_dict({})
+                        self.history.load_state_dict({})
                 else:
                     self.epoch = int(self.trainer.epoch)
                     self.checkpoint_epoch = self.epoch
@@ -351,6 +413,10 @@ class SystemWorker:
     def _estimate(self) -> tuple[dict[str, Any], str | None]:
         return estimate_parameters(self.structure, self.trainer)
 
+    def _current_best(self) -> dict[str, Any] | None:
+        """The monitor's headline once it has one, else the first ``best``."""
+        return self._monitor_view.get("best") or self._best
+
     def _publish(self, observe: bool = False) -> None:
         snap = self._base_snapshot()
         tr = self.trainer
@@ -367,25 +433,19 @@ class SystemWorker:
                 log.exception("%s: building the snapshot failed", self.name)
                 params, source, disc = {}, None, {}
                 snap["error"] = f"snapshot failed: {exc}"
-            means = [params[p]["mean"] for p in self.structure.free] if params else None
-            modal = modal_quantities(self.structure, means) if means else None
-            # the modal quantities of the last epochs: they follow a change at once, while
-            # the running ensemble's means lag by up to its length
             modal_recent = (modal_quantities(self.structure, [recent[p] for p in self.structure.free])
                             if recent else None)
             snap.update({
                 "epoch": int(tr.epoch),
                 "converged": bool(tr.converged),
                 "converged_at": getattr(getattr(tr, "monitor", None), "converged_at", None),
-                "parameters": params,
-                "estimate_source": source,
                 "recent": recent,
                 "fixed": {p: i.fixed for p, i in self.structure.parameters.items()
                           if i.fixed is not None and not p.startswith("_fixed_")},
                 "discriminator": disc,
-                "modal": modal,
                 "modal_recent": modal_recent,
             })
+            snap.update({"ensemble": params, "ensemble_source": source})
             if self._last_log is not None:
                 snap["losses"] = {"loss_d": self._last_log.loss_d,
                                   "loss_adv": self._last_log.loss_adv,
@@ -401,33 +461,41 @@ class SystemWorker:
         if self._epoch_times:
             snap["seconds_per_epoch"] = float(np.mean(self._epoch_times))
         snap = jsonable(snap)
-        snap["best"] = self._best
-        if self._best_error:
-            snap["best_error"] = self._best_error
-        with self._drift_lock:
-            if observe and tr is not None and recent:
-                raised = self.drift.observe({
-                    "epoch": snap["epoch"], "time": snap["time"], "converged": snap["converged"],
-                    "recent": snap["recent"],
-                    "parameters": {p: {k: s.get(k) for k in ("mean", "std", "ci95")}
-                                   for p, s in snap["parameters"].items()},
-                    "modal": snap.get("modal_recent"), "modal_estimate": snap.get("modal"),
-                    "n_train": len(self._train_ids),
-                    "n_validation": len(self._val_ids)})
-                for a in raised:
-                    log.warning("%s: drift alarm: %s", self.name, a["message"])
-            report = self._report()
-        snap["alarms"] = [a for a in report["alarms"] if a["active"]]
-        self._drift_report = report
         with self._snap_lock:
             # the refiner may have published a newer ``best`` while this one was built
-            snap["best"] = self._best
+            if tr is not None:
+                snap.update(jsonable(self._headline_keys(snap.get("ensemble", {}),
+                                                         snap.get("ensemble_source"))))
+            if self._best_error:
+                snap["best_error"] = self._best_error
+            snap["alarms"] = [a for a in self._monitor_view["report"]["alarms"] if a["active"]]
             self._snapshot = snap
+            with self._drift_lock:
+                if observe and tr is not None:
+                    self.history.add({
+                        "epoch": snap["epoch"], "time": snap["time"],
+                        "converged": snap["converged"], "recent": snap.get("recent") or {},
+                        "parameters": {p: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                                       for p, v in snap.get("parameters", {}).items()},
+                        "estimate_source": snap.get("estimate_source"),
+                        "ensemble": {p: v.get("mean") for p, v in
+                                     snap.get("ensemble", {}).items()},
+                        "modal": snap.get("modal"), "modal_recent": snap.get("modal_recent")})
+                self._drift_report = self._report()
         if self.events is not None and observe:
             try:
                 self.events.log_snapshot(self.name, estimate_view(snap, self._counts()))
             except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
                 log.exception("%s: event log failed", self.name)
+
+    def _headline_keys(self, ensemble: dict[str, Any], source: str | None) -> dict[str, Any]:
+        keys = headline(self.structure, ensemble, source, self._current_best())
+        means = [keys["parameters"].get(p, {}).get("mean") for p in self.structure.free]
+        keys["modal"] = (modal_quantities(self.structure, means)
+                         if means and all(m is not None for m in means) else None)
+        keys["best"] = self._current_best()
+        keys["monitoring"] = self._monitor_view.get("summary")
+        return keys
 
     # ------------------------------------------------------------------ refinement (best)
     def _offer_refinement(self) -> None:
@@ -437,9 +505,11 @@ class SystemWorker:
             return
         now = time.monotonic()
         last = self._refine_offered
-        if (last is not None and last[0] == self._data_version
-                and now - last[1] < self.settings.refine_every_s):
-            return
+        if self._best is not None or self.monitor.ready:
+            return  # from now on the per-record fits carry the headline
+        if last is not None and (last[0] == self._data_version
+                                 or now - last[1] < self.settings.refine_every_s):
+            return  # one job per data set, at most every refine_every_s
         ens = getattr(tr, "ensemble", None)
         if ens is None or len(ens) == 0:
             return
@@ -462,11 +532,87 @@ class SystemWorker:
                 log.info("%s: refinement of data set %d superseded; result dropped",
                          self.name, job["version"])
                 return
-            self._best = best
+            self._best = {**best, "source": "recommend_best",
+                          "method": "Approach III over the ensemble, then output-error "
+                                    "refinement on the most recent training records"}
             self._best_error = None
-            snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
-            snap["best"] = best
-            self._snapshot = snap
+            if not self.monitor.ready:
+                theta = [best["parameters"][p]["value"] for p in self.structure.free]
+                proc = job["processing"] if job["processing"] is not None else Processing()
+                with self._monitor_lock:
+                    self.monitor.seed(theta, proc)
+            self._refresh_snapshot()
+
+    def _refresh_snapshot(self) -> None:
+        """Refiner thread (under ``_snap_lock``): the headline keys of the current snapshot
+        follow a new ``best`` at once, even while the trainer is idle."""
+        snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
+        if snap.get("epoch"):
+            snap.update(jsonable(self._headline_keys(snap.get("ensemble", {}),
+                                                     snap.get("ensemble_source"))))
+        snap["alarms"] = [a for a in self._monitor_view["report"]["alarms"] if a["active"]]
+        self._snapshot = snap
+        with self._drift_lock:
+            self._drift_report = self._report()
+
+    # ------------------------------------------------------------------ monitoring
+    def _monitor_step(self) -> bool:
+        """Refiner thread: fit the oldest stored record not yet monitored; False when
+        there is none (or no ``best`` to start from yet)."""
+        if not self.monitor.ready or self._stop.is_set():
+            return False
+        try:
+            metas = self.store.recordings(self.name)
+        except UnknownSystem:
+            return False
+        pending = [m for m in metas if m.index > self.monitor.processed_index]
+        if not pending:
+            return False
+        meta = min(pending, key=lambda m: m.index)
+        try:
+            raw = self.store.read_raw(self.name, meta)
+            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt)
+        except (OSError, RecordingError) as exc:
+            self.monitor.processed_index = meta.index
+            self.monitor.failures[meta.id] = str(exc)
+            return True
+        with REFINE_LOCK, self._monitor_lock:
+            if self._stop.is_set():
+                return False
+            changes = self.monitor.process(meta.id, meta.index, rec,
+                                           getattr(meta, "received_at", None))
+        for a in changes:
+            a.setdefault(f"epoch_{a['state']}", self.epoch)
+            a.setdefault("epoch", self.epoch)
+            log.warning("%s: drift alarm %s: %s", self.name, a["state"], a["message"])
+        with self._snap_lock:
+            self._update_monitor_view()
+            self._refresh_snapshot()
+        if changes and self.events is not None:
+            try:
+                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+            except Exception:  # noqa: BLE001
+                log.exception("%s: event log failed", self.name)
+        return True
+
+    def _update_monitor_view(self) -> None:
+        """Immutable, JSON-safe copies of what the monitor holds, for readers."""
+        report = jsonable(self.monitor.report(limit=self.settings.history_limit))
+        hl = self.monitor.headline()
+        best = None
+        if hl is not None:
+            best = jsonable({
+                "parameters": {p: {"value": s["mean"], "std": s["std"], "ci95": s["ci95"],
+                                   "n": s.get("n")} for p, s in hl["parameters"].items()},
+                "epoch": self.epoch, "n_records": hl["n_records"], "time": hl["time"],
+                "records": hl["records"], "output_error": None, "refined": True,
+                "source": "records", "method": hl["method"], "modal": hl.get("modal")})
+        summary = {"records_fitted": len(self.monitor.fits),
+                   "processed_index": self.monitor.processed_index,
+                   "baseline": (report.get("reference") or {}).get("n_records"),
+                   "seconds_per_record": report.get("seconds_per_record"),
+                   "active_alarms": report.get("active_alarms", [])}
+        self._monitor_view = {"report": report, "best": best, "summary": summary}
 
     def _set_best_error(self, message: str) -> None:
         self._best_error = message
@@ -480,8 +626,10 @@ class SystemWorker:
     def _checkpoint(self) -> None:
         if self.trainer is None:
             return
-        state = checkpoint_state(self.structure.spec, self.trainer, self.drift,
-                                 self._train_ids, self._val_ids)
+        with self._monitor_lock:  # a consistent monitor (no fit half-applied)
+            extra = {"monitor": self.monitor.state_dict(), "best": self._best}
+        state = checkpoint_state(self.structure.spec, self.trainer, self.history,
+                                 self._train_ids, self._val_ids, extra)
         try:
             self.store.save_checkpoint(self.name, state)
         except UnknownSystem:
