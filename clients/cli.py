@@ -5,7 +5,7 @@
     siva-client upload-folder NAME DIR [--role ...]
     siva-client recordings NAME
     siva-client estimate NAME
-    siva-client wait NAME [--timeout S]
+    siva-client wait NAME [--for best|converged] [--max-wait S]
     siva-client drift NAME [--watch] [--interval S]
 
 ``--url`` (or ``SIVA_URL``, default http://127.0.0.1:8000) and ``--token`` (or
@@ -58,8 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("estimate", help="the current estimate")
     c.add_argument("name")
 
-    c = sub.add_parser("wait", help="wait until the estimate has converged, then print it")
+    c = sub.add_parser("wait", help="wait until the headline estimate is the output-error "
+                                    "best (default) or the trainer has converged, then print it")
     c.add_argument("name")
+    c.add_argument("--for", dest="until", choices=("best", "converged"), default="best",
+                   help="best (default): parameters are the output-error estimate; "
+                        "converged: the ensemble has converged (best may still be null)")
     c.add_argument("--max-wait", type=float, default=600.0, help="seconds (default 600)")
 
     c = sub.add_parser("drift", help="estimate history and drift alarms")
@@ -137,7 +141,7 @@ def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
         elif cmd == "estimate":
             _print(client.estimate(args.name), out)
         elif cmd == "wait":
-            _print(client.wait_converged(args.name, timeout=args.max_wait), out)
+            _print(client.wait(args.name, args.until, timeout=args.max_wait), out)
         elif cmd == "drift":
             if args.watch:
                 watch_drift(client, args.name, args.interval, args.count, out)

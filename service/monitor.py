@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from dataclasses import asdict
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -51,6 +52,7 @@ class RecordMonitor:
         self.fits: deque[dict[str, Any]] = deque(maxlen=FITS_KEPT)
         self.processed_index = -1                   # highest store index handled
         self.failures: dict[str, str] = {}
+        self.past_alarms: list[dict[str, Any]] = []  # alarms of baselines before a reset
         self._headline: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ setup
@@ -78,6 +80,10 @@ class RecordMonitor:
         """``POST .../drift/reset``: a new baseline from the next records; the headline
         window restarts there too (the structure was repaired or deliberately changed)."""
         if self.detector is not None:
+            for a in self.detector.alarms:
+                self.past_alarms.append({**a, "active": False, "reset_before_index":
+                                         self.processed_index + 1})
+            del self.past_alarms[:-FITS_KEPT]
             self.detector.reset()
         self._reset_index = self.processed_index + 1
 
@@ -150,10 +156,15 @@ class RecordMonitor:
     # ------------------------------------------------------------------ read-out
     def report(self, limit: int | None = None) -> dict[str, Any]:
         det = self.detector.report() if self.detector else {
-            "rule": None, "reference": None, "n_records": 0, "alarms": [], "active_alarms": []}
+            "rule": {**asdict(self.settings), "threshold_h": None, "quantities": None,
+                     "false_alarms_per_1000_records_nominal": 1000.0 / self.settings.arl0_records,
+                     "note": "the detector starts with the first best (the monitored "
+                             "quantities are known then)"},
+            "reference": None, "n_records": 0, "alarms": [], "active_alarms": []}
         fits = list(self.fits)[-limit:] if limit else list(self.fits)
         seconds = [f["seconds"] for f in fits if f.get("seconds") is not None]
-        return {**det, "records": fits, "failures": dict(self.failures),
+        return {**det, "alarm_history": self.past_alarms + det["alarms"],
+                "records": fits, "failures": dict(self.failures),
                 "seconds_per_record": float(np.mean(seconds)) if seconds else None,
                 "processed_index": self.processed_index}
 
@@ -162,7 +173,8 @@ class RecordMonitor:
                 "processing": self.processing, "fits": list(self.fits),
                 "processed_index": self.processed_index, "headline": self._headline,
                 "detector": self.detector.state_dict() if self.detector else None,
-                "reset_index": getattr(self, "_reset_index", -1)}
+                "reset_index": getattr(self, "_reset_index", -1),
+                "past_alarms": self.past_alarms}
 
     def load_state_dict(self, d: Mapping[str, Any]) -> None:
         if not d:
@@ -174,6 +186,7 @@ class RecordMonitor:
         self.processed_index = int(d.get("processed_index", -1))
         self._headline = d.get("headline")
         self._reset_index = int(d.get("reset_index", -1))
+        self.past_alarms = list(d.get("past_alarms", []))
         if self.theta0 is not None:
             self.detector = self._new_detector()
             self.detector.load_state_dict(d.get("detector") or {})

@@ -73,7 +73,7 @@ class Settings:
     # Headline estimate and idling.
     headline_window: int = 8            # per-record fits averaged into the headline
     record_max_nfev: int = 20           # cost evaluations of one per-record fit
-    idle_after_epochs: int = 50         # converged + data unchanged this long: pause; 0: never
+    idle_after_epochs: int = 200        # converged + data unchanged this long: pause; 0: never
     torch_threads: int = 0              # 0: torch's default
     # Output-error refinement (``best``), in a background thread per system.
     refine_every_s: float = 60.0        # first best: at most one job per this; 0: no best

@@ -495,6 +495,7 @@ class SystemWorker:
                          if means and all(m is not None for m in means) else None)
         keys["best"] = self._current_best()
         keys["monitoring"] = self._monitor_view.get("summary")
+        keys["alarm_history"] = self._monitor_view["report"]["alarm_history"]
         return keys
 
     # ------------------------------------------------------------------ refinement (best)

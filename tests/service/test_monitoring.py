@@ -12,6 +12,8 @@ a small baseline (4 records):
 """
 from __future__ import annotations
 
+import io
+import json
 import time
 
 import numpy as np
@@ -57,6 +59,14 @@ def test_headline_drift_and_idle(srv, poll):
         assert est["best"] is None and est["estimate_source"] in (None, "ensemble", "generator")
         for i in range(6):
             _upload(c, K, i, "validation" if i % 3 == 2 else "train")
+        # ``wait --for best`` returns once the headline is best, not merely at convergence
+        from clients.cli import build_parser, run
+
+        buf = io.StringIO()
+        assert run(build_parser().parse_args(["--url", srv.base_url, "wait", "osc", "--for",
+                                              "best", "--max-wait", "150"]), out=buf) == 0
+        waited = json.loads(buf.getvalue())
+        assert waited["estimate_source"] == "best" and waited["best"] is not None
         # headline: best, with its source, records and interval; ensemble kept apart
         est = poll(c, "/v1/systems/osc/estimate",
                    lambda e: e["estimate_source"] == "best" and e["best"]["source"] == "records"
@@ -97,5 +107,14 @@ def test_headline_drift_and_idle(srv, poll):
         after = c.post("/v1/systems/osc/drift/reset").json()
     assert after["reference"] is None and after["alarms"] == []
     srv.assert_no_bugs()
+    # ``siva replay`` of the event log carries the logged headline and the alarm history
+    from service.replay import replay
+
+    srv.stop()
+    logs = sorted(srv.data_dir.rglob("*osc*.mcap")) or sorted(srv.data_dir.rglob("*.mcap"))
+    rep = replay(logs)
+    assert rep["estimate_source"] == "best" and rep["best"] is not None
+    assert rep["ensemble"] and set(rep["ensemble"]) == {"c", "k"}
+    assert "k" in {a["parameter"] for a in rep["alarm_history"]}
     print(f"\nidle CPU {used:.2%} of a core; alarms: "
           + "; ".join(a["message"] for a in drift["alarms"]))
