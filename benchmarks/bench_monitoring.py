@@ -119,6 +119,51 @@ def headline_error(run: dict[str, Any], at: int, truth: dict[str, float]) -> dic
     return out
 
 
+def static_server(minutes: float, seed: int = 7, timeout_s: float = 1200.0) -> dict[str, Any]:
+    """(d) A real server (uvicorn, in this process) with three static LO-NO records: time to
+    the first best and to idle, then alarms and CPU (this process) over ``minutes``."""
+    import tempfile
+
+    import psutil
+
+    from clients.client import SivaClient
+    from service.demo import LONO_SPEC, ServerThread
+    from service.settings import Settings
+
+    cfg = DemoConfig()
+    structure = lono_structure()
+    rng = np.random.default_rng(seed)
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as d:
+        settings = Settings(data_dir=Path(d), torch_threads=1)
+        with ServerThread(settings) as url, SivaClient(url) as c:
+            c.register("lono", LONO_SPEC)
+            for i, role in enumerate(("train", "train", "validation")):
+                cols = simulate_impact(LONO_TRUTH, float(rng.uniform(300, 900)), rng, cfg,
+                                       structure)
+                c.upload("lono", to_csv(cols), role=role)
+            t0 = time.monotonic()
+            est = c.wait("lono", "best", timeout=timeout_s)
+            out["first_best_s"] = time.monotonic() - t0
+            while est.get("state") != "idle" and time.monotonic() - t0 < timeout_s:
+                time.sleep(2.0)
+                est = c.estimate("lono")
+            out["idle_after_s"] = time.monotonic() - t0
+            out["state"] = est.get("state")
+            proc = psutil.Process()
+            t1, cpu1 = time.monotonic(), sum(proc.cpu_times()[:2])
+            time.sleep(60.0 * minutes)
+            out["cpu_fraction_of_a_core"] = ((sum(proc.cpu_times()[:2]) - cpu1)
+                                             / (time.monotonic() - t1))
+            drift = c.drift("lono")
+            out["alarms"] = len(drift["alarm_history"])
+            out["minutes"] = minutes
+            est = c.estimate("lono")
+            out["headline"] = {p: est["parameters"][p]["mean"] / LONO_TRUTH[p] - 1
+                               for p in LONO_TRUTH}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
@@ -126,7 +171,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", type=int, default=None)
     ap.add_argument("--drop-at", type=int, default=20)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--static-minutes", type=float, default=None,
+                    help="(d) only: a real server with static data for this many minutes")
     args = ap.parse_args(argv)
+    if args.static_minutes is not None:
+        res = static_server(args.static_minutes)
+        print(f"(d) static data on a real server: first best after {res['first_best_s']:.0f} s, "
+              f"idle after {res['idle_after_s']:.0f} s; over {res['minutes']:g} min: "
+              f"{res['alarms']} alarm(s), {res['cpu_fraction_of_a_core'] * 100:.2f} % of a core; "
+              "headline vs truth: " + ", ".join(f"{p} {e * 100:+.2f} %"
+                                                 for p, e in res["headline"].items()))
+        if args.out:
+            args.out.write_text(json.dumps(res, indent=2, default=float))
+        return 0
     seeds = args.seeds or (2 if args.quick else 4)
     n_static = args.records or (60 if args.quick else 100)
     result: dict[str, Any] = {}
