@@ -274,7 +274,9 @@ class ChangeDetector:
         if len(recent) >= s.clear_records and all(abs(z) < CLEAR_Z for z in recent):
             self._clear(active, q, rec, f"back to baseline for {s.clear_records} records")
             return [active]
-        self._describe(active, q)
+        z = self.z[q][i]
+        if z is not None and (z > CLEAR_Z if side == 0 else z < -CLEAR_Z):
+            self._describe(active, q)  # still shifted: refine when, by how much
         return []
 
     def _position(self, index: Any) -> int:
