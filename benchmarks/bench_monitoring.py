@@ -200,6 +200,24 @@ def main(argv: list[str] | None = None) -> int:
     print(f"(a) no change: {fa} false alarm(s) in {n} records ({1000 * fa / n:.2f} per 1000); "
           f"{spr:.2f} s per record fit ({time.perf_counter() - t0:.0f} s)")
 
+    # what can be detected: per-record scatter vs the floor, and the CUSUM's arithmetic
+    rule, ref = static[0]["report"]["rule"], static[0]["report"]["reference"]["quantities"]
+    h, k, clip = rule["threshold_h"], rule["k"], rule["clip"]
+    result["detectability"] = {}
+    print(f"    h = {h:.2f}, k = {k}, |z| <= {clip}: no alarm sooner than "
+          f"{int(np.ceil(h / (clip - k)))} records after a change")
+    print("    quantity | per-record scatter | floor | smallest change alarmed within "
+          "8 / 20 records (expected)")
+    for q, b in ref.items():
+        s = max(b["scatter"], b["floor"]) / abs(b["centre"])
+        within8, within20 = (k + h / 8) * s, (k + h / 20) * s
+        result["detectability"][q] = {"scatter_rel": b["scatter"] / abs(b["centre"]),
+                                      "floor_rel": b["floor"] / abs(b["centre"]),
+                                      "within_8": within8, "within_20": within20}
+        print(f"    {q:8s} | {b['scatter'] / abs(b['centre']) * 100:8.3f} % | "
+              f"{b['floor'] / abs(b['centre']) * 100:.2f} % | {within8 * 100:.2f} % / "
+              f"{within20 * 100:.2f} %")
+
     # (b) drops
     result["drops"] = {}
     print("(b) k1 drop | seed | delay (records) | named | change-point error | change")
