@@ -36,14 +36,12 @@ class Refiner:
     """A job slot and a daemon thread that empties it (one per system)."""
 
     def __init__(self, name: str, structure: Structure, store: Store, *,
-                 is_current: Callable[[int], bool],
                  on_result: Callable[[dict[str, Any], dict[str, Any]], None],
                  on_error: Callable[[str], None],
                  step: Callable[[], bool] | None = None) -> None:
         self.name = name
         self.structure = structure
         self.store = store
-        self._is_current = is_current
         self._on_result = on_result
         self._on_error = on_error
         self._step = step
@@ -111,8 +109,8 @@ class Refiner:
                     break
 
     def run(self, job: dict[str, Any]) -> dict[str, Any] | None:
-        """``recommend_best`` on the job's records, re-parsed from the store.  None when the
-        data set changed meanwhile (a newer job follows) or the service stops."""
+        """``recommend_best`` on the job's records, re-parsed from the store.  None when a
+        record was deleted meanwhile or the service stops."""
         from siva_core._impl.siva import recommend_best
 
         t0 = time.perf_counter()
@@ -126,7 +124,7 @@ class Refiner:
             recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt))
         proc = job["processing"] if job["processing"] is not None else Processing()
         with REFINE_LOCK:
-            if self._stop.is_set() or not self._is_current(job["version"]):
+            if self._stop.is_set():
                 return None
             rec = recommend_best(self.structure, job["candidates"], recs, proc)
         params: dict[str, Any] = {}

@@ -106,7 +106,6 @@ class SystemWorker:
         self._best: dict[str, Any] | None = None
         self._best_error: str | None = None
         self._refiner = (Refiner(name, structure, store,
-                                 is_current=lambda v: v == self._data_version,
                                  on_result=self._set_best, on_error=self._set_best_error,
                                  step=self._monitor_step)
                          if settings.refine_every_s > 0 else None)
@@ -516,9 +515,14 @@ class SystemWorker:
             return
         samples = np.array(ens.samples, dtype=float, copy=True)
         epochs = np.asarray(getattr(ens, "epochs", np.full(len(samples), tr.epoch)))
-        samples = samples[epochs >= self._data_epoch]  # harvested on the current data set
-        if len(samples) < min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES):
-            return  # just after a data change: wait for samples of the new data set
+        need = min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES)
+        current = samples[epochs >= self._data_epoch]  # harvested on the current data set
+        # prefer candidates of the current data set; while records stream (a new data set
+        # every few epochs) the older ones will do: Approach III picks among them on the
+        # current records, and the refinement and per-record fits take it from there
+        samples = current if len(current) >= need else samples
+        if len(samples) < need:
+            return
         job = {"version": self._data_version, "epoch": int(tr.epoch),
                "candidates": samples[-self.settings.refine_candidates:],
                "train": list(self._train_ids[-self.settings.refine_max_records:]),
@@ -527,12 +531,10 @@ class SystemWorker:
         self._refiner.submit(job)
 
     def _set_best(self, best: dict[str, Any], job: dict[str, Any]) -> None:
-        """Refiner thread: publish ``best`` unless a newer data set superseded its job."""
+        """Refiner thread: publish the first ``best`` and seed the monitor with it.  Kept
+        even when records arrived meanwhile (while records stream they always do): it only
+        starts the per-record fits, which then follow every record."""
         with self._snap_lock:
-            if job["version"] != self._data_version:
-                log.info("%s: refinement of data set %d superseded; result dropped",
-                         self.name, job["version"])
-                return
             self._best = {**best, "source": "recommend_best",
                           "method": "Approach III over the ensemble, then output-error "
                                     "refinement on the most recent training records"}
