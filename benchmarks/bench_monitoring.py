@@ -171,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", type=int, default=None)
     ap.add_argument("--drop-at", type=int, default=20)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--first-seed", type=int, default=100, help="(a) seeds start here")
+    ap.add_argument("--no-change-only", action="store_true", help="(a) and detectability only")
     ap.add_argument("--static-minutes", type=float, default=None,
                     help="(d) only: a real server with static data for this many minutes")
     args = ap.parse_args(argv)
@@ -190,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # (a) no change
     t0 = time.perf_counter()
-    static = [run_stream(100 + s, n_static) for s in range(seeds)]
+    static = [run_stream(args.first_seed + s, n_static) for s in range(seeds)]
     n = sum(r["n_records"] for r in static)
     fa = sum(len(raised(r)) for r in static)
     spr = float(np.mean([r["seconds_per_record"] for r in static]))
@@ -217,6 +219,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"    {q:8s} | {b['scatter'] / abs(b['centre']) * 100:8.3f} % | "
               f"{b['floor'] / abs(b['centre']) * 100:.2f} % | {within8 * 100:.2f} % / "
               f"{within20 * 100:.2f} %")
+
+    if args.no_change_only:
+        if args.out:
+            args.out.write_text(json.dumps(result, indent=2, default=float))
+        return 0
 
     # (b) drops
     result["drops"] = {}
