@@ -168,6 +168,24 @@ class RecordMonitor:
                 "seconds_per_record": float(np.mean(seconds)) if seconds else None,
                 "processed_index": self.processed_index}
 
+    def view(self, epoch: int, limit: int | None = None) -> dict[str, Any]:
+        """What readers get: the drift ``report``, the headline as ``best`` (the shape of
+        the estimate's ``best``; None before the first per-record fit) and a ``summary``."""
+        report = self.report(limit=limit)
+        hl = self._headline
+        best = None
+        if hl is not None:
+            best = {"parameters": {p: {"value": s["mean"], "std": s["std"], "ci95": s["ci95"],
+                                       "n": s.get("n")} for p, s in hl["parameters"].items()},
+                    "epoch": epoch, "n_records": hl["n_records"], "time": hl["time"],
+                    "records": hl["records"], "output_error": None, "refined": True,
+                    "source": "records", "method": hl["method"], "modal": hl.get("modal")}
+        summary = {"records_fitted": len(self.fits), "processed_index": self.processed_index,
+                   "baseline": (report.get("reference") or {}).get("n_records"),
+                   "seconds_per_record": report.get("seconds_per_record"),
+                   "active_alarms": report.get("active_alarms", [])}
+        return {"report": report, "best": best, "summary": summary}
+
     def state_dict(self) -> dict[str, Any]:
         return {"theta0": None if self.theta0 is None else self.theta0.tolist(),
                 "processing": self.processing, "fits": list(self.fits),

@@ -600,22 +600,7 @@ class SystemWorker:
 
     def _update_monitor_view(self) -> None:
         """Immutable, JSON-safe copies of what the monitor holds, for readers."""
-        report = jsonable(self.monitor.report(limit=self.settings.history_limit))
-        hl = self.monitor.headline()
-        best = None
-        if hl is not None:
-            best = jsonable({
-                "parameters": {p: {"value": s["mean"], "std": s["std"], "ci95": s["ci95"],
-                                   "n": s.get("n")} for p, s in hl["parameters"].items()},
-                "epoch": self.epoch, "n_records": hl["n_records"], "time": hl["time"],
-                "records": hl["records"], "output_error": None, "refined": True,
-                "source": "records", "method": hl["method"], "modal": hl.get("modal")})
-        summary = {"records_fitted": len(self.monitor.fits),
-                   "processed_index": self.monitor.processed_index,
-                   "baseline": (report.get("reference") or {}).get("n_records"),
-                   "seconds_per_record": report.get("seconds_per_record"),
-                   "active_alarms": report.get("active_alarms", [])}
-        self._monitor_view = {"report": report, "best": best, "summary": summary}
+        self._monitor_view = jsonable(self.monitor.view(self.epoch, self.settings.history_limit))
 
     def _set_best_error(self, message: str) -> None:
         self._best_error = message
