@@ -196,7 +196,18 @@ def main(argv: list[str] | None = None) -> int:
     n = sum(r["n_records"] for r in static)
     fa = sum(len(raised(r)) for r in static)
     spr = float(np.mean([r["seconds_per_record"] for r in static]))
+    cover = {p: [] for p in LONO_TRUTH}
+    for r in static:  # headline coverage at every 8th record (windows do not overlap)
+        for h in r["headlines"][7::8]:
+            for p, v in h["parameters"].items():
+                ci = v.get("ci95")
+                cover[p].append(bool(ci and ci[0] <= LONO_TRUTH[p] <= ci[1]))
+    coverage = {p: float(np.mean(c)) for p, c in cover.items() if c}
+    print("    headline 95 % CI coverage (every 8th record): " + ", ".join(
+        f"{p} {c * 100:.0f} %" for p, c in coverage.items())
+        + f" (n = {len(next(iter(cover.values())))})")
     result["no_change"] = {"records": n, "false_alarms": fa, "per_1000": 1000 * fa / n,
+                           "headline_coverage": coverage,
                            "seconds_per_record": spr,
                            "alarms": [e for r in static for e in raised(r)]}
     print(f"(a) no change: {fa} false alarm(s) in {n} records ({1000 * fa / n:.2f} per 1000); "
