@@ -96,8 +96,9 @@ class RecordMonitor:
         try:
             fit = fit_record(self.structure, self.theta0, record, self.processing,
                              max_nfev=self.max_nfev)
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as exc:
+        except Exception as exc:  # noqa: BLE001 - one unusable record must not stop monitoring
             self.failures[rid] = f"{type(exc).__name__}: {exc}"
+            del_oldest(self.failures, FITS_KEPT)
             fit = None
         ok = fit is not None and fit.success is not False and bool(np.all(np.isfinite(fit.theta)))
         entry = {"id": rid, "index": int(index), "time": received_at or time.time(), "ok": ok}
@@ -208,6 +209,12 @@ class RecordMonitor:
         if self.theta0 is not None:
             self.detector = self._new_detector()
             self.detector.load_state_dict(d.get("detector") or {})
+
+
+def del_oldest(d: dict[str, Any], keep: int) -> None:
+    """Bound a dict kept in insertion order to its ``keep`` newest entries."""
+    for key in list(d)[:-keep]:
+        del d[key]
 
 
 def combine(x: np.ndarray, se: np.ndarray) -> dict[str, Any]:
