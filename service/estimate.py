@@ -11,7 +11,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from siva_core._impl.structure import Structure
+from siva_core import Structure
 
 
 def jsonable(x: Any) -> Any:

@@ -23,9 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from siva_core._impl.processing import Processing
-from siva_core._impl.recording import Recording
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, Structure
 
 from .detector import ChangeDetector, DetectorSettings
 from .record_fit import RECORD_MAX_NFEV, RecordFit, fit_record, modal_names, modal_values

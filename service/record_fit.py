@@ -16,9 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from siva_core._impl.processing import Processing
-from siva_core._impl.recording import Recording
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, Structure
 
 from .drift import modal_quantities
 

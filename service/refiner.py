@@ -19,9 +19,7 @@ import threading
 import time
 from typing import Any, Callable
 
-from siva_core._impl.processing import Processing
-from siva_core._impl.recording import Recording
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, Structure
 
 from .estimate import jsonable
 from .store import Store

@@ -10,9 +10,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from siva_core._impl.processing import Processing
-from siva_core._impl.recording import Recording, RecordingError
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, RecordingError, Structure
 
 
 def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:

@@ -35,9 +35,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from siva_core._impl.processing import Processing, States
-from siva_core._impl.recording import Recording, RecordingError
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, RecordingError, States, Structure
 
 from .checkpoints import CHECKPOINT_VERSION, checkpoint_state, matches
 from .detector import DetectorSettings
@@ -290,7 +288,8 @@ class SystemWorker:
         log.info("%s: idle at epoch %d (converged, data unchanged); resumes on new data",
                  self.name, self.epoch)
         while not self._stop.is_set() and not self._dirty.is_set():
-            self._wake.wait(60.0)
+            self.heartbeat = time.monotonic()  # idle is not stuck (for a liveness check)
+            self._wake.wait(10.0)
             self._wake.clear()
         self._idle_since_epoch = None
         self._state = "converged"
