@@ -5,7 +5,7 @@
     siva-client upload-folder NAME DIR [--role ...]
     siva-client recordings NAME
     siva-client estimate NAME [--json]
-    siva-client wait NAME [--timeout S]
+    siva-client wait NAME [--for best|converged] [--max-wait S]
     siva-client drift NAME [--watch] [--interval S] [--json]
     siva-client drift reset NAME
     siva-client delete NAME [--yes]
@@ -65,8 +65,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("name")
     c.add_argument("--json", action="store_true", help="the server's JSON instead of a table")
 
-    c = sub.add_parser("wait", help="wait until the estimate has converged, then print it")
+    c = sub.add_parser("wait", help="wait until the headline estimate is the output-error "
+                                    "best (default) or the trainer has converged, then print it")
     c.add_argument("name")
+    c.add_argument("--for", dest="until", choices=("best", "converged"), default="best",
+                   help="best (default): parameters are the output-error estimate; "
+                        "converged: the ensemble has converged (best may still be null)")
     c.add_argument("--max-wait", type=float, default=600.0, help="seconds (default 600)")
 
     c = sub.add_parser("drift", help="estimate history and drift alarms; 'drift reset NAME' "
@@ -178,7 +182,7 @@ def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
             else:
                 out.write(render.render_estimate(args.name, est, _units(client, args.name)) + "\n")
         elif cmd == "wait":
-            _print(client.wait_converged(args.name, timeout=args.max_wait), out)
+            _print(client.wait(args.name, args.until, timeout=args.max_wait), out)
         elif cmd == "drift":
             name = _drift_target(args.name)
             if name is None:

@@ -187,20 +187,34 @@ class SivaClient:
                        min_recordings: int = 0) -> dict[str, Any]:
         """Poll the estimate until ``converged`` (and, optionally, until it counts at least
         ``min_recordings`` recordings); the estimate, or TimeoutError after ``timeout`` s."""
+        return self.wait(name, "converged", timeout, poll, min_recordings)
+
+    def wait(self, name: str, until: str = "best", timeout: float = 600.0, poll: float = 1.0,
+             min_recordings: int = 0) -> dict[str, Any]:
+        """Poll the estimate until ``until`` holds: "best" (the headline ``parameters`` are
+        the output-error estimate, ``estimate_source == "best"``) or "converged" (the
+        trainer's ensemble has converged; ``best`` may still be null).  Returns the
+        estimate, or raises TimeoutError after ``timeout`` s saying what it waited for."""
+        if until not in ("best", "converged"):
+            raise ValueError(f"wait until {until!r}: use 'best' or 'converged'")
         deadline = time.monotonic() + timeout
         last: dict[str, Any] = {}
         while True:
             try:
                 last = self.estimate(name)
                 counted = sum((last.get("n_recordings") or {}).values())
-                if last.get("converged") and counted >= min_recordings:
+                done = (last.get("estimate_source") == "best" and last.get("best") is not None
+                        if until == "best" else bool(last.get("converged")))
+                if done and counted >= min_recordings:
                     return last
             except SivaClientError as exc:
                 if exc.status not in (404, 409, 425, 503):  # not "no estimate yet"
                     raise
             if time.monotonic() >= deadline:
-                raise TimeoutError(f"{name}: not converged after {timeout:g} s "
-                                   f"(epoch {last.get('epoch')})")
+                what = ("no best estimate yet" if until == "best" else "not converged")
+                raise TimeoutError(f"{name}: {what} after {timeout:g} s (epoch "
+                                   f"{last.get('epoch')}, converged {last.get('converged')}, "
+                                   f"source {last.get('estimate_source')})")
             time.sleep(poll)
 
 

@@ -24,25 +24,14 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from siva_core import RecordingError, SpecError, Structure
 from siva_core import RecordingTooLarge
 
+from .errors import ApiError, UploadTooLarge
+from .routes import router
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
-from .worker import SystemWorker, parse_upload
+from .uploads import parse_upload
+from .worker import SystemWorker
 
 log = logging.getLogger("siva.service")
-
-
-class ApiError(Exception):
-    """A refusal with an HTTP status and a detail naming what is wrong and where."""
-
-    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-        self.headers = headers
-
-
-class UploadTooLarge(Exception):
-    pass
 
 
 # --------------------------------------------------------------------------- event log hook
@@ -293,8 +282,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                               "See docs/service.md.")
     app.state.service = service
     app.state.settings = settings
-
-    from .routes import router
 
     app.include_router(router)
     from . import dashboard, metrics

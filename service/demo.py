@@ -203,6 +203,13 @@ class DemoStreamer(threading.Thread):
                     if i > 0 and training and epoch - last_epoch < cfg.min_epochs_between:
                         self._halt.wait(min(cfg.interval_s, 0.5))
                         continue
+                    # once monitoring runs, never more than two records ahead of it (each
+                    # record is fitted once; on a slow machine the story stays the same)
+                    mon = (est or {}).get("monitoring") or {}
+                    if (i > 0 and mon.get("processed_index") is not None
+                            and mon["processed_index"] >= 0 and mon["processed_index"] < i - 2):
+                        self._halt.wait(min(cfg.interval_s, 0.5))
+                        continue
                     if (self.drop_index is None and i >= cfg.drop_after
                             and self._has_reference(client, est)):
                         self.drop_index = i

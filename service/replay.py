@@ -244,7 +244,7 @@ class _Replayer:
         does, on all selected records) applied to each record."""
         from siva_core import Processing
 
-        from .worker import processing_for
+        from .uploads import processing_for
 
         train, val = ds.train, ds.validation
         recs = [self.recording(i) for i in train + val]
@@ -305,7 +305,7 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     the last snapshot the live service logged (``max_diff_in_std``: the largest difference
     of a parameter mean, in units of that parameter's std; 0 when identical).
     """
-    from .worker import estimate_parameters, estimate_view, jsonable
+    from .estimate import estimate_parameters, estimate_view, jsonable
 
     files = log_files(path)
     plan = _plan(files)
@@ -322,7 +322,8 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
     snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
             "epoch": int(trainer.epoch), "converged": bool(trainer.converged),
-            "system": plan.spec.system}
+            "system": plan.spec.system, "ensemble": params, "ensemble_source": source,
+            **_logged_monitoring(plan.final_snapshot)}
     out = jsonable(estimate_view(snap, plan.counts))
     out["replay"] = jsonable({
         "files": plan.files, "epochs": int(trainer.epoch),
@@ -333,13 +334,32 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     return out
 
 
+def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
+    """The headline estimate and alarm history as the live service last logged them.
+
+    Monitoring (``best``, per-record fits, alarms) runs beside the trainer on its own
+    schedule, so it is reported from the log, not re-run: ``parameters`` is the logged
+    headline when it was ``best``; the replayed ensemble is under ``ensemble``."""
+    if snap is None:
+        return {}
+    est = snap.estimate_dict()
+    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate")
+           if k in est}
+    if est.get("estimate_source") == "best":
+        out.update(parameters=est.get("parameters") or {}, estimate_source="best")
+    if "drift" in est:
+        out["drift"] = est["drift"]
+    return out
+
+
 def _compare(out: dict[str, Any], snap: SnapshotEvent | None) -> dict[str, Any] | None:
     if snap is None:
         return None
-    logged = snap.estimate_dict().get("parameters") or {}
+    est = snap.estimate_dict()
+    logged = est.get("ensemble") or est.get("parameters") or {}
     worst = 0.0
     identical = snap.epoch == out["epoch"]
-    for p, s in out["parameters"].items():
+    for p, s in (out.get("ensemble") or out["parameters"]).items():
         ref = logged.get(p)
         if not ref or ref.get("mean") is None or s.get("mean") is None:
             identical = False

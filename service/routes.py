@@ -8,20 +8,23 @@ from __future__ import annotations
 import hmac
 import json
 import tomllib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from .app import ApiError, SivaService, UploadTooLarge
+from .errors import ApiError, UploadTooLarge
 from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                       RecordingList, SystemAck, SystemList, SystemSpec)
 from siva_core import media_types, resolve_format
 
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
-from .worker import estimate_view
+from .estimate import estimate_view
+
+if TYPE_CHECKING:  # the app imports this module; at run time the request holds the service
+    from .app import SivaService
 
 router = APIRouter()
 
@@ -38,7 +41,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 CONTENT_FORMATS = media_types()
 
 
-def service_of(request: Request) -> SivaService:
+def service_of(request: Request) -> "SivaService":
     return request.app.state.service
 
 

@@ -22,7 +22,7 @@ import pytest
 from synthetic import free_decay
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED_DATA = REPO.parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("SIVA_SHARED_DATA") or REPO.parent / "shared" / "data")
 DUFFING = SHARED_DATA / "duffing"
 MODELS = REPO / "examples" / "models"
 

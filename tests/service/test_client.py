@@ -12,6 +12,7 @@ import httpx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+DUFFING = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
 from tests.conftest import find_shared_data  # noqa: E402
 

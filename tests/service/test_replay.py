@@ -23,7 +23,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "tests" / "fixtures"
-DATA = ROOT.parent / "shared" / "data" / "duffing"
+DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
 
 from service.mcap_log import (TOPIC_DATASET, TOPIC_SNAPSHOT, EventLog, is_finished,  # noqa: E402
