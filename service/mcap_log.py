@@ -156,16 +156,21 @@ class _SystemLog:
         self._fh = open(path, "xb")
         # chunk_size=1: every message closes its own (compressed, CRC'd) chunk immediately,
         # so nothing sits in a buffer when the process dies.
-        self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
-        self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
-                                           **{k: str(v) for k, v in metadata.items()}})
+        try:
+            self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
+            self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
+            self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
+                                               **{k: str(v) for k, v in metadata.items()}})
+            self._sync()
+        except BaseException:  # e.g. disk full: leave no headless file behind
+            self.abandon()
+            path.unlink(missing_ok=True)
+            raise
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time = 0
         self.lock = threading.Lock()  # one writer at a time per file; files are independent
         self.has_spec = False
-        self._sync()
 
     def _channel(self, topic: str) -> int:
         if topic not in self._channels:
@@ -446,6 +451,8 @@ def _good_records(raw: bytes) -> list[tuple[int, int]]:
     the file: the scan resynchronises at the next chunk that parses with a valid CRC, so
     events written after a torn chunk stay readable.
     """
+    if len(raw) < MAGIC_SIZE and MAGIC.startswith(raw):
+        return []  # died while writing the magic: an empty log
     if raw[:MAGIC_SIZE] != MAGIC:
         raise McapError("not an MCAP file (bad magic)")
     good: list[tuple[int, int]] = []
