@@ -153,6 +153,7 @@ def run(rounds: int, clients: int, data_dir: Path, *, seed: int = 1,
     rnd = random.Random(seed)
     stats = Stats()
     pending: list[tuple[str, int]] = []
+    data_dir.parent.mkdir(parents=True, exist_ok=True)
     srv = Server(data_dir, ENV)
     t_start = time.monotonic()
     for k in range(rounds):
