@@ -141,7 +141,7 @@ class SivaService:
             with self._lock:
                 items = list(self.workers.items())
             for name, w in items:
-                if w.alive or w._stop.is_set():
+                if not _died(w):
                     continue
                 since, restarts, _ = self._dead.get(name, (time.monotonic(), 0, ""))
                 why = f"trainer thread of {name!r} died ({w._error or 'unexpected exit'})"
@@ -170,7 +170,7 @@ class SivaService:
         for name, w in items:
             if w._stop.is_set():
                 continue
-            if not w.alive:
+            if _died(w):
                 problems.append(f"system {name!r}: trainer thread is dead "
                                 f"({w._error or 'unexpected exit'}); restarting")
                 continue
@@ -302,6 +302,13 @@ class SivaService:
             return self.store.counts(name)
         except UnknownSystem as exc:
             raise ApiError(404, str(exc)) from None
+
+
+def _died(w: SystemWorker) -> bool:
+    """The trainer thread was started and ended without being asked to stop (a worker still
+    restoring its checkpoint in ``start`` has not started its thread yet: not dead)."""
+    t = w._thread
+    return t.ident is not None and not t.is_alive() and not w._stop.is_set()
 
 
 def _storage_detail(what: str, exc: OSError) -> str:
