@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test test-all bench clean
+.PHONY: install run test test-all test-reliability bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -23,6 +23,10 @@ test: $(STAMP)
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''
+
+# the reliability suite, slow parts included (tmpfs tests need root; see docs/reliability.md)
+test-reliability: $(STAMP)
+	$(BIN)/python -m pytest -q -m '' tests/reliability
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py

@@ -91,6 +91,7 @@ def test_disk_full_gives_507_and_everything_recovers(make_server, tmpfs, oscilla
     assert stored and stored <= logged
 
 
+@pytest.mark.slow
 def test_read_only_gives_507_and_delete_is_not_half_applied(make_server, tmpfs, oscillator,
                                                             lenient_client):
     disk = tmpfs(48)

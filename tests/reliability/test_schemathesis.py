@@ -62,6 +62,7 @@ def run_schemathesis(base_url: str, examples: int) -> collections.Counter[int]:
     return status
 
 
+@pytest.mark.slow
 def test_generated_requests(srv):
     status = run_schemathesis(srv.base_url, EXAMPLES)
     total = sum(status.values())
