@@ -458,7 +458,11 @@ def _good_records(raw: bytes) -> list[tuple[int, int]]:
     good: list[tuple[int, int]] = []
     pos = MAGIC_SIZE
     n = len(raw)
+    resynced = False  # after damage only CRC-checked chunks are trusted
     while pos + 9 <= n:
+        if resynced and raw[pos] != _CHUNK_OPCODE:
+            pos = _resync(raw, pos)
+            continue
         end = _record_end(raw, pos)
         if end is not None and _record_ok(raw, pos, end):
             good.append((pos, end))
@@ -466,6 +470,7 @@ def _good_records(raw: bytes) -> list[tuple[int, int]]:
                 break
             pos = end
             continue
+        resynced = True
         pos = _resync(raw, pos + 1)
     return good
 
@@ -484,30 +489,39 @@ def _resync(raw: bytes, start: int) -> int:
     return len(raw)
 
 
-def _good_bytes(raw: bytes) -> tuple[bytes, int]:
-    """The file with only its good records (magic first), and how many bytes were kept."""
-    ranges = _good_records(raw)
-    body = b"".join(raw[a:b] for a, b in ranges)
-    return MAGIC + body, MAGIC_SIZE + len(body)
+def _good_bytes(raw: bytes) -> tuple[list[Any], int]:
+    """The records of the good ranges, parsed range by range (a range that parses alone
+    but not in sequence is dropped, not fatal), and how many bytes were kept."""
+    records: list[Any] = []
+    kept = MAGIC_SIZE
+    for a, b in _good_records(raw):
+        recs: list[Any] = []
+        try:
+            for rec in StreamReader(io.BytesIO(raw[a:b]), skip_magic=True,
+                                    validate_crcs=True).records:
+                recs.append(rec)
+        except EndOfFile:
+            pass
+        except Exception:  # noqa: BLE001 - damaged: skip this record only
+            continue
+        records.extend(recs)
+        kept += b - a
+    return records, kept
 
 
 def iter_raw(path: str | Path) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """(schema, channel, message) in file order; tolerant of a missing footer."""
-    good, _kept = _good_bytes(Path(path).read_bytes())
+    records, _kept = _good_bytes(Path(path).read_bytes())
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    reader = StreamReader(io.BytesIO(good), skip_magic=False)
-    try:
-        for rec in reader.records:
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Message) and rec.channel_id in channels:
-                ch = channels[rec.channel_id]
-                yield schemas.get(ch.schema_id), ch, rec
-    except EndOfFile:
-        return
+    for rec in records:
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            channels[rec.id] = rec
+        elif isinstance(rec, Message) and rec.channel_id in channels:
+            ch = channels[rec.channel_id]
+            yield schemas.get(ch.schema_id), ch, rec
 
 
 def read_events(path: str | Path) -> list[LogEvent]:
@@ -532,13 +546,7 @@ def recover(path: str | Path) -> Path:
     if is_finished(path):
         return path
     raw = path.read_bytes()
-    good, end = _good_bytes(raw)
-    records = []
-    try:
-        for rec in StreamReader(io.BytesIO(good)).records:
-            records.append(rec)
-    except EndOfFile:
-        pass
+    records, end = _good_bytes(raw)
     tmp = path.with_name(path.name + ".recovering")
     with open(tmp, "wb") as fh:
         w = Writer(fh, chunk_size=1, compression=CompressionType.ZSTD)
