@@ -5,39 +5,9 @@ from __future__ import annotations
 import httpx
 import pytest
 from hostile import BOMBS, catalogue
+from procmem import growth_mb, mem_mb
 
 CASES = catalogue()
-
-
-def _mem_mb(pid: int) -> tuple[float, float]:
-    """(current RSS, peak RSS) of a process in MB."""
-    vals = {}
-    with open(f"/proc/{pid}/status") as fh:
-        for line in fh:
-            key = line.split(":")[0]
-            if key in ("VmRSS", "VmHWM"):
-                vals[key] = int(line.split()[1]) / 1024
-    return vals["VmRSS"], vals["VmHWM"]
-
-
-def growth_mb(before: tuple[float, float], after: tuple[float, float]) -> float:
-    """How much the process grew during a request: to its new peak if it set one."""
-    rss0, hwm0 = before
-    rss1, hwm1 = after
-    return (hwm1 if hwm1 > hwm0 else rss1) - rss0
-
-
-TOKEN = "tok"
-
-
-@pytest.fixture(scope="module")
-def srv(make_server, linear):
-    # the token is required for reads too: the catalogue sends it, test_reads_need_... not
-    s = make_server(env={"SIVA_MAX_UPLOAD_BYTES": str(8 << 20), "SIVA_REFINE_EVERY_S": "0",
-                         "SIVA_API_TOKEN": TOKEN, "SIVA_API_TOKEN_READS": "1"})
-    with s.client() as c:
-        assert c.put("/v1/systems/h", json={**linear, "name": "h"}).status_code == 201
-    return s
 
 
 def _marks(case):
@@ -53,9 +23,9 @@ def test_hostile_case(srv, case):
     with httpx.Client(base_url=srv.base_url, timeout=120,
                       headers={"Authorization": f"Bearer {TOKEN}"}) as c:
         body = case.content()
-        m0 = _mem_mb(srv.proc.pid)
+        m0 = mem_mb(srv.proc.pid)
         r = c.request(case.method, case.path, content=body, headers=case.headers)
-        m1 = _mem_mb(srv.proc.pid)
+        m1 = mem_mb(srv.proc.pid)
     assert r.status_code < 500, f"{case.id}: {r.status_code} {r.text[:300]}"
     assert r.status_code in case.expect, f"{case.id}: {r.status_code} {r.text[:300]}"
     if r.status_code >= 400:

@@ -10,21 +10,12 @@ import time
 import httpx
 import numpy as np
 import pytest
+from procmem import growth_mb, mem_mb
 
 UPLOADERS = 20
 UPLOADS_EACH = 5
 READERS = 5
 MB_SAMPLES = 14_000  # rows of a 4-column CSV of ~1 MB
-
-
-def _mem_mb(pid: int) -> tuple[float, float]:
-    vals = {}
-    with open(f"/proc/{pid}/status") as fh:
-        for line in fh:
-            key = line.split(":")[0]
-            if key in ("VmRSS", "VmHWM"):
-                vals[key] = int(line.split()[1]) / 1024
-    return vals["VmRSS"], vals["VmHWM"]
 
 
 def one_mb_csv(seed: int) -> bytes:
@@ -53,14 +44,14 @@ def test_load_20_uploaders_1mb_with_concurrent_reads(make_server, linear):
     assert 0.8e6 < len(bodies[0]) < 1.3e6, len(bodies[0])
     # one 1 MB upload alone: the server must not grow by more than 200 MB (issue 9)
     single = one_mb_csv(10_000)
-    m0 = _mem_mb(srv.proc.pid)
+    m0 = mem_mb(srv.proc.pid)
     with srv.client() as c:
         assert c.post("/v1/systems/load/recordings", content=single,
                       headers={"content-type": "text/csv"}).status_code == 202
-    m1 = _mem_mb(srv.proc.pid)
-    single_growth = (m1[1] if m1[1] > m0[1] else m1[0]) - m0[0]
+    m1 = mem_mb(srv.proc.pid)
+    single_growth = growth_mb(m0, m1)
     assert single_growth < 200, f"one 1 MB upload grew the server by {single_growth:.0f} MB"
-    m0 = _mem_mb(srv.proc.pid)
+    m0 = mem_mb(srv.proc.pid)
     upload_s: list[float] = []
     read_s: list[float] = []
     errors: list[str] = []
@@ -100,8 +91,8 @@ def test_load_20_uploaders_1mb_with_concurrent_reads(make_server, linear):
     for t in rds:
         t.join(60)
     wall = time.perf_counter() - t_start
-    m1 = _mem_mb(srv.proc.pid)
-    grew = (m1[1] if m1[1] > m0[1] else m1[0]) - m0[0]
+    m1 = mem_mb(srv.proc.pid)
+    grew = growth_mb(m0, m1)
     with srv.client() as c:
         n = len(c.get("/v1/systems/load/recordings").json()["recordings"])
     print(f"\nload: {len(upload_s)} uploads of ~1 MB by {UPLOADERS} clients in {wall:.0f} s; "
