@@ -10,6 +10,19 @@ from procmem import growth_mb, mem_mb
 CASES = catalogue()
 
 
+TOKEN = "tok"
+
+
+@pytest.fixture(scope="module")
+def srv(make_server, linear):
+    # the token is required for reads too: the catalogue sends it, test_reads_need_... not
+    s = make_server(env={"SIVA_MAX_UPLOAD_BYTES": str(8 << 20), "SIVA_REFINE_EVERY_S": "0",
+                         "SIVA_API_TOKEN": TOKEN, "SIVA_API_TOKEN_READS": "1"})
+    with s.client() as c:
+        assert c.put("/v1/systems/h", json={**linear, "name": "h"}).status_code == 201
+    return s
+
+
 def _marks(case):
     marks = [pytest.mark.xfail(strict=False, reason=case.xfail)] if case.xfail else []
     if case.id in BOMBS:  # hundreds of MB in the server until the formats branch bounds them
