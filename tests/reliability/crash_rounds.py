@@ -144,7 +144,8 @@ class _Clients:
 
 
 def run(rounds: int, clients: int, data_dir: Path, *, seed: int = 1,
-        max_kill_after_s: float = 5.0, replay_prefixes: bool = True) -> dict[str, Any]:
+        max_kill_after_s: float = 5.0, replay_prefixes: bool = True,
+        env: dict[str, str] | None = None) -> dict[str, Any]:
     """The experiment; returns the figures (see the module docstring)."""
     from service.mcap_log import read_events
     from service.replay import log_files, replay
@@ -154,7 +155,7 @@ def run(rounds: int, clients: int, data_dir: Path, *, seed: int = 1,
     stats = Stats()
     pending: list[tuple[str, int]] = []
     data_dir.parent.mkdir(parents=True, exist_ok=True)
-    srv = Server(data_dir, ENV)
+    srv = Server(data_dir, {**ENV, **(env or {})})
     t_start = time.monotonic()
     for k in range(rounds):
         srv.start()
@@ -234,9 +235,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--data-dir", type=Path, default=None)
     ap.add_argument("--no-prefixes", action="store_true")
+    ap.add_argument("--refine-every-s", default="0",
+                    help="SIVA_REFINE_EVERY_S of the server (0: the refiner is off)")
     a = ap.parse_args()
     d = a.data_dir or Path(tempfile.mkdtemp(prefix="siva-crash-")) / "data"
-    res = run(a.rounds, a.clients, d, seed=a.seed, replay_prefixes=not a.no_prefixes)
+    res = run(a.rounds, a.clients, d, seed=a.seed, replay_prefixes=not a.no_prefixes,
+              env={"SIVA_REFINE_EVERY_S": a.refine_every_s})
     res["data_dir"] = str(d)
     print(json.dumps(res, indent=1))
 
