@@ -14,8 +14,7 @@ from hypothesis import strategies as st
 
 from service.limits import LimitError, check_structure, parse_spec_body
 from service.settings import Settings
-from siva_core._impl.recording import RecordingError
-from siva_core._impl.structure import SpecError, Structure
+from siva_core import RecordingError, SpecError, Structure
 
 SETTINGS = Settings()
 FAST = settings(max_examples=150, deadline=None,
