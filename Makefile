@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test test-all test-browser bench clean
+.PHONY: install run test test-all test-browser test-reliability bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -29,6 +29,10 @@ test-browser: $(STAMP)
 	@command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
 	  (apt-get update && apt-get install -y chromium chromium-driver)
 	$(BIN)/python -m pytest -q tests/service/test_dashboard.py
+
+# the reliability suite, slow parts included (tmpfs tests need root; see docs/reliability.md)
+test-reliability: $(STAMP)
+	$(BIN)/python -m pytest -q -m '' tests/reliability
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py

@@ -125,7 +125,7 @@ def _plan(files: Sequence[Path]) -> _Plan:
         snaps = [s for seg in segments for s in seg.of(TOPIC_SNAPSHOT)]
         final_snap = snaps[-1] if snaps else None
     for seg in segments if exact else []:
-        seg_sets = _segment_datasets(seg)
+        seg_sets = _segment_datasets(seg, final=seg is segments[-1])
         snaps = seg.of(TOPIC_SNAPSHOT)
         if seg_sets:
             start = seg_sets[0].epoch
@@ -157,11 +157,20 @@ def _plan(files: Sequence[Path]) -> _Plan:
                  [str(f) for f in files], exact)
 
 
-def _segment_datasets(seg: _Segment) -> list[_DataSet]:
+def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
     """The data-set changes of one log, each with the processing chain it used: logged with
-    the event, else the one the next snapshot on the same records reports (``data``)."""
+    the event, else the one the next snapshot on the same records reports (``data``).
+
+    The ``final`` log, when it has snapshots, ends for replay at its last one: data-set
+    changes logged after it (a process killed before publishing again) describe training
+    nobody saw, and replaying them would run past the published estimate.  (In an earlier
+    log they stay: a checkpoint taken after them carries their effect into the next log.)"""
     out: list[_DataSet] = []
-    for k, le in enumerate(seg.events):
+    last_snap = len(seg.events)
+    if final:
+        last_snap = max((k for k, le in enumerate(seg.events) if le.topic == TOPIC_SNAPSHOT),
+                        default=last_snap)
+    for k, le in enumerate(seg.events[:last_snap]):
         if le.topic != TOPIC_DATASET:
             continue
         d = le.event

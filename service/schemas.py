@@ -188,9 +188,11 @@ class SystemList(_Open):
 
 
 class Health(_Open):
-    status: Literal["ok"]
+    status: Literal["ok", "unhealthy"]
     systems: int
     workers_alive: int
+    problems: list[str] = Field(default_factory=list,
+                                description="why the service is unhealthy (503), one per problem")
 
 
 class ErrorDetail(BaseModel):

@@ -40,6 +40,16 @@ ENV_VARS: dict[str, str] = {
     "SIVA_REFINE_EVERY_S": "refine_every_s",
     "SIVA_REFINE_MAX_RECORDS": "refine_max_records",
     "SIVA_REFINE_CANDIDATES": "refine_candidates",
+    "SIVA_API_TOKEN_READS": "token_for_reads",
+    "SIVA_MAX_SPEC_BYTES": "max_spec_bytes",
+    "SIVA_MAX_SPEC_DEPTH": "max_spec_depth",
+    "SIVA_MAX_DOFS": "max_dofs",
+    "SIVA_MAX_ELEMENTS": "max_elements",
+    "SIVA_MAX_PARAMETERS": "max_parameters",
+    "SIVA_MIN_SAMPLING_RATE_HZ": "min_sampling_rate_hz",
+    "SIVA_MAX_SAMPLING_RATE_HZ": "max_sampling_rate_hz",
+    "SIVA_STOP_TIMEOUT_S": "stop_timeout_s",
+    "SIVA_STUCK_AFTER_S": "stuck_after_s",
 }
 
 
@@ -79,6 +89,18 @@ class Settings:
     refine_every_s: float = 60.0        # first best: at most one job per this; 0: no best
     refine_max_records: int = 3         # most recent train records it fits
     refine_candidates: int = 150        # last ensemble samples tried by Approach III
+    # Access and input limits (docs/reliability.md).
+    token_for_reads: bool = False       # SIVA_API_TOKEN_READS=1: reads need the token too
+    max_spec_bytes: int = 64 * 1024     # body of PUT /v1/systems/{name}
+    max_spec_depth: int = 8             # nesting of objects/arrays in a spec
+    max_dofs: int = 16
+    max_elements: int = 64
+    max_parameters: int = 32            # free parameters (each costs training time)
+    min_sampling_rate_hz: float = 1.0   # recordings outside this range are refused (422)
+    max_sampling_rate_hz: float = 1.0e6
+    # Supervision.
+    stop_timeout_s: float = 10.0        # DELETE / SIGTERM wait at most this for a trainer
+    stuck_after_s: float = 600.0        # /healthz: a trainer without progress this long is stuck
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -88,15 +110,18 @@ class Settings:
                     "auto_validation_every", "snapshot_every", "history_limit",
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
                     "refine_candidates", "drift_baseline_records", "headline_window",
-                    "record_max_nfev", "drift_arl0_records")
+                    "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
+                    "max_dofs", "max_elements", "max_parameters")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
         for name in ("replay_reservoir", "checkpoint_every_s", "idle_sleep_s", "epoch_pause_s",
                      "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
-                     "drift_min_rel_scatter"):
+                     "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
+        if not 0 < self.min_sampling_rate_hz < self.max_sampling_rate_hz:
+            raise ValueError("settings min_sampling_rate_hz < max_sampling_rate_hz, both > 0")
         if self.auto_validation_every < 2:
             raise ValueError("setting auto_validation_every must be >= 2 "
                              "(otherwise every record would go to validation)")
@@ -130,6 +155,12 @@ def _convert(raw: str, typ: Any, var: str) -> Any:
                 if not x.is_integer():
                     raise
                 return int(x)
+        if typ == "bool":
+            if raw.lower() in ("1", "true", "yes", "on"):
+                return True
+            if raw.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(raw)
         if typ == "float":
             return float(raw)
         if typ == "Path":

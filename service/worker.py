@@ -111,6 +111,8 @@ class SystemWorker:
         self.trainer: Any = None
         self.epoch = 0
         self.checkpoint_epoch: int | None = None
+        self.checkpoint_error: str | None = None  # the last checkpoint write failed (why)
+        self.heartbeat = time.monotonic()          # loop progress, for /healthz "stuck"
         self._recs: dict[str, Recording] = {}
         self._states: dict[str, States] = {}
         self._proc: Processing | None = None
@@ -210,6 +212,7 @@ class SystemWorker:
         failures = 0
         last_ckpt = time.monotonic()
         while not self._stop.is_set():
+            self.heartbeat = time.monotonic()
             if self._dirty.is_set():
                 self._dirty.clear()
                 try:
@@ -621,6 +624,11 @@ class SystemWorker:
             self.store.save_checkpoint(self.name, state)
         except UnknownSystem:
             return
+        except Exception as exc:  # noqa: BLE001 - disk full/read-only: train on, retry later
+            log.error("%s: checkpoint failed: %s", self.name, exc)
+            self.checkpoint_error = f"{type(exc).__name__}: {exc}"
+            return
+        self.checkpoint_error = None
         self.checkpoint_epoch = int(self.trainer.epoch)
 
 
