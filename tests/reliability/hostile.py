@@ -3,8 +3,8 @@ that once ended in a 5xx, a hang, a silent corruption or an absurd estimate (iss
 with the status the service must answer now.
 
 Each case is (id, method, path, body, headers, expected statuses, xfail reason or None).
-Only bounded parsing of recordings (decompression bombs, complex NPZ arrays, CSV ``1_0``)
-is refused by the readers before anything is decompressed.
+Recordings that would need unbounded parsing (decompression bombs, complex NPZ arrays, CSV
+``1_0``) are refused by the readers before anything is decompressed.
 """
 from __future__ import annotations
 
