@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test test-all bench clean
+.PHONY: install run test test-all test-browser test-reliability bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -24,8 +24,29 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''
 
+# the dashboard in headless Chromium (Debian's chromium + chromium-driver; run as root)
+test-browser: $(STAMP)
+	@command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
+	  (apt-get update && apt-get install -y chromium chromium-driver)
+	$(BIN)/python -m pytest -q tests/service/test_dashboard.py
+
+# the reliability suite, slow parts included (tmpfs tests need root; see docs/reliability.md)
+test-reliability: $(STAMP)
+	$(BIN)/python -m pytest -q -m '' tests/reliability
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
 
 clean:
 	rm -rf $(VENV) siva-data .pytest_cache
+
+.PHONY: constraints docker-smoke
+
+# docker/constraints.txt: the versions of the working venv, used by the Docker build
+constraints: $(STAMP)
+	( sed -n '1,2p' docker/constraints.txt; $(BIN)/pip freeze --exclude-editable ) > docker/constraints.new
+	mv docker/constraints.new docker/constraints.txt
+
+# build the image on $(BASE_IMAGE) and smoke-test the container (docker/smoke.sh says how)
+docker-smoke:
+	bash docker/smoke.sh

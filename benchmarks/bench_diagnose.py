@@ -40,9 +40,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core._impl.diagnose import diagnose, synthetic_impacts, with_effect  # noqa: E402
-from siva_core._impl.recording import Recording  # noqa: E402
-from siva_core._impl.structure import Structure  # noqa: E402
+from siva_core import (Recording, Structure, diagnose, synthetic_impacts,  # noqa: E402
+                       with_effect)
 
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MODEL = ROOT / "examples" / "models" / "lono.toml"

@@ -4,10 +4,10 @@ The paper's Sec. 3.1 setting: train on ``duffing/train_v5.csv``, validate on ``v
 and ``val_v8.csv`` (examples/models/duffing.toml).  SIVA runs end to end (training until
 converged, Approach I sampling, the Approach II harvest, Approach III by simulating the
 candidates, ``best`` by output-error refinement) and is timed; SINDy
-(:func:`siva_core._impl.baselines.sindy`, pysindy with the model's own terms) and plain
+(:func:`siva_core.sindy`, pysindy with the model's own terms) and plain
 equation-error least squares are fitted on the same processed states and timed.  Every
 estimate's displacement MSE [mm^2] is computed by the same simulation
-(:func:`siva_core._impl.refine.displacement_mse`), on the training and validation records.
+(:func:`siva_core.displacement_mse`), on the training and validation records.
 
 PASS/FAIL (the paper's Table 1 as the bar; exit status 1 on any FAIL):
   MSE I <= 0.2835, MSE II <= 3.262e-3, MSE III <= 1.100e-4 mm^2 (training record),
@@ -29,10 +29,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core import Recording, Siva, Structure  # noqa: E402
-from siva_core._impl import baselines  # noqa: E402
-from siva_core._impl.refine import displacement_mse  # noqa: E402
-from siva_core._impl.simulate import warmup  # noqa: E402
+from siva_core import (Recording, Siva, Structure, displacement_mse,  # noqa: E402
+                       least_squares, sindy, warmup)
 from _common import data_dir  # noqa: E402
 
 #: the paper's Table 1 displacement MSE [mm^2] on the training record
@@ -86,9 +84,9 @@ def main() -> int:
     times["approach_III"] = times["approach_II"] + res.timing_s.get("approach_III", np.nan)
 
     # --- pysindy and least squares on the same processed states
-    for name in ("sindy", "least_squares"):
+    for name, fit_with in (("sindy", sindy), ("least_squares", least_squares)):
         t0 = time.perf_counter()
-        fit = getattr(baselines, name)(st, est.train_states_)
+        fit = fit_with(st, est.train_states_)
         times[name] = time.perf_counter() - t0
         ests[name] = st.vector(fit)
 

@@ -4,7 +4,7 @@ The paper's chain (band-pass 4-50 Hz, integrate with 3 Hz high-pass, decimate to
 start after the impact) is applied step by step to the exact accelerations of
 ``impact_<A>N_clean.csv`` and then in full to the noisy ``impact_<A>N.csv``; after each step
 the LO-NO model (examples/models/lono.toml) is fitted by least squares
-(:func:`siva_core._impl.baselines.least_squares`) and the % error against truth.json is
+(:func:`siva_core.least_squares`) and the % error against truth.json is
 printed.  Two fits per chain: every parameter free, and ``beta`` fixed at its true value
 (the setting of the data README's figures: b2 -68 %, k2 +32 %, alpha -18 %).
 
@@ -28,8 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core import Processing, Recording, Structure  # noqa: E402
-from siva_core._impl.baselines import least_squares  # noqa: E402
+from siva_core import Processing, Recording, Structure, least_squares  # noqa: E402
 from _common import data_dir  # noqa: E402
 
 

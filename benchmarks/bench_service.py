@@ -67,7 +67,7 @@ def start_server(data: Path, port: int) -> subprocess.Popen:
     env = {**os.environ, "SIVA_TORCH_THREADS": "1", "SIVA_SNAPSHOT_EVERY": "5",
            "SIVA_LOG_LEVEL": "WARNING", "PYTHONPATH": str(ROOT)}
     env.pop("SIVA_API_TOKEN", None)
-    return subprocess.Popen([sys.executable, "-m", "siva_core.cli", "serve", "--port", str(port),
+    return subprocess.Popen([sys.executable, "-m", "siva_cli", "serve", "--port", str(port),
                              "--data-dir", str(data)], env=env, cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 

@@ -37,8 +37,7 @@ from scipy.integrate import solve_ivp
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core import Recording, Structure  # noqa: E402
-from siva_core._impl.simulate import gate_force, simulate, warmup  # noqa: E402
+from siva_core import Recording, Structure, gate_force, simulate, warmup  # noqa: E402
 from _common import data_dir  # noqa: E402
 
 DUFFING_LIMIT_S = 2.0

@@ -36,8 +36,8 @@ LN4 = float(np.log(4.0))
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core import Recording, SivaSettings, SivaTrainer, Structure  # noqa: E402
-from siva_core._impl.siva import choose_processing  # noqa: E402
+from siva_core import (Recording, SivaSettings, SivaTrainer, Structure,  # noqa: E402
+                       choose_processing)
 from _common import data_dir  # noqa: E402
 
 SYSTEMS = {

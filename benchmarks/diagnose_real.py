@@ -25,9 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core._impl.diagnose import diagnose, html_report  # noqa: E402
-from siva_core._impl.recording import Recording  # noqa: E402
-from siva_core._impl.structure import Structure  # noqa: E402
+from siva_core import Recording, Structure, diagnose, html_report  # noqa: E402
 
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "real"
 

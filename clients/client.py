@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 from urllib.parse import quote
 
 import httpx
@@ -18,14 +18,21 @@ API = "/v1"
 DEFAULT_URL = "http://127.0.0.1:8000"
 
 # upload content type per file suffix (CONTRACT.md: CSV; the same content as JSON / MCAP)
+# (the server's registry: siva_core._impl.formats; a test keeps the two in step)
 CONTENT_TYPES: dict[str, str] = {
     "csv": "text/csv",
     "txt": "text/csv",
     "json": "application/json",
     "npz": "application/x-npz",
     "mcap": "application/x-mcap",
+    "lvm": "application/x-lvm",
+    "uff": "application/x-uff",
+    "unv": "application/x-uff",
+    "uff58": "application/x-uff",
+    "tdms": "application/x-tdms",
+    "mat": "application/x-matlab-data",
 }
-RECORDING_SUFFIXES = tuple(f".{s}" for s in ("csv", "json", "npz", "mcap"))
+RECORDING_SUFFIXES = tuple(f".{s}" for s in CONTENT_TYPES if s != "txt")  # .txt: too vague
 ROLES = ("train", "validation")
 
 
@@ -126,22 +133,46 @@ class SivaClient:
         return self._json("POST", f"{_sys(name)}/recordings", params=params,
                           content=data, headers=headers)
 
-    def upload_folder(self, name: str, folder: str | Path, role: str | None = None
-                      ) -> list[dict[str, Any]]:
+    def upload_folder(self, name: str, folder: str | Path, role: str | None = None,
+                      warn: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
         """Upload every recording file of a folder, in name order.
 
         Roles: ``role`` for all when given; otherwise files under ``train/`` and
         ``val/`` or ``validation/`` subfolders get those roles, and files elsewhere whose
         name starts with ``val`` are validation; the rest are left to the server's default.
+        What is not a recording is skipped with a warning (``warn``): files of another
+        suffix, and files the server refuses as recordings (413/415/422); any other error
+        (token, unknown system, unreachable server) stops the upload.
         """
-        items = folder_plan(folder, role)
+        warn = warn or (lambda msg: None)
+        items, others = folder_plan(folder, role, with_skipped=True)
+        for p in others:
+            warn(f"skipping {p}: not a recording format ({', '.join(RECORDING_SUFFIXES)})")
         if not items:
             raise SivaClientError(f"{folder}: no recording files ({', '.join(RECORDING_SUFFIXES)})")
         out = []
         for path, r in items:
-            ack = self.upload(name, path, role=r)
+            try:
+                ack = self.upload(name, path, role=r)
+            except SivaClientError as exc:
+                if exc.status not in (413, 415, 422):
+                    raise
+                warn(f"skipping {path}: {exc}")
+                continue
             out.append({"path": str(path), "role": r, **ack})
         return out
+
+    def delete(self, name: str) -> dict[str, Any]:
+        """DELETE a system with its recordings, estimate and history."""
+        return self._json("DELETE", _sys(name))
+
+    def drift_reset(self, name: str) -> dict[str, Any]:
+        """Forget the drift reference and alarms (e.g. after a repair); history is kept."""
+        return self._json("POST", f"{_sys(name)}/drift/reset")
+
+    def system(self, name: str) -> dict[str, Any]:
+        """The registered system (its spec)."""
+        return self._json("GET", _sys(name))
 
     def recordings(self, name: str) -> Any:
         return self._json("GET", f"{_sys(name)}/recordings")
@@ -156,20 +187,34 @@ class SivaClient:
                        min_recordings: int = 0) -> dict[str, Any]:
         """Poll the estimate until ``converged`` (and, optionally, until it counts at least
         ``min_recordings`` recordings); the estimate, or TimeoutError after ``timeout`` s."""
+        return self.wait(name, "converged", timeout, poll, min_recordings)
+
+    def wait(self, name: str, until: str = "best", timeout: float = 600.0, poll: float = 1.0,
+             min_recordings: int = 0) -> dict[str, Any]:
+        """Poll the estimate until ``until`` holds: "best" (the headline ``parameters`` are
+        the output-error estimate, ``estimate_source == "best"``) or "converged" (the
+        trainer's ensemble has converged; ``best`` may still be null).  Returns the
+        estimate, or raises TimeoutError after ``timeout`` s saying what it waited for."""
+        if until not in ("best", "converged"):
+            raise ValueError(f"wait until {until!r}: use 'best' or 'converged'")
         deadline = time.monotonic() + timeout
         last: dict[str, Any] = {}
         while True:
             try:
                 last = self.estimate(name)
                 counted = sum((last.get("n_recordings") or {}).values())
-                if last.get("converged") and counted >= min_recordings:
+                done = (last.get("estimate_source") == "best" and last.get("best") is not None
+                        if until == "best" else bool(last.get("converged")))
+                if done and counted >= min_recordings:
                     return last
             except SivaClientError as exc:
                 if exc.status not in (404, 409, 425, 503):  # not "no estimate yet"
                     raise
             if time.monotonic() >= deadline:
-                raise TimeoutError(f"{name}: not converged after {timeout:g} s "
-                                   f"(epoch {last.get('epoch')})")
+                what = ("no best estimate yet" if until == "best" else "not converged")
+                raise TimeoutError(f"{name}: {what} after {timeout:g} s (epoch "
+                                   f"{last.get('epoch')}, converged {last.get('converged')}, "
+                                   f"source {last.get('estimate_source')})")
             time.sleep(poll)
 
 
@@ -190,15 +235,20 @@ def load_spec(path: str | Path) -> dict[str, Any]:
         raise SivaClientError(f"{p}: not a valid model spec file ({exc})") from None
 
 
-def folder_plan(folder: str | Path, role: str | None = None) -> list[tuple[Path, str | None]]:
-    """(file, role) pairs that :meth:`SivaClient.upload_folder` sends, in order."""
+def folder_plan(folder: str | Path, role: str | None = None, *, with_skipped: bool = False
+                ) -> Any:
+    """(file, role) pairs that :meth:`SivaClient.upload_folder` sends, in order; with
+    ``with_skipped`` also the files it leaves out (another suffix; hidden files are ignored)."""
     root = Path(folder)
     if not root.is_dir():
         raise SivaClientError(f"{root}: not a folder")
-    files = sorted(p for p in root.rglob("*") if p.is_file()
-                   and p.suffix.lower() in RECORDING_SUFFIXES and not p.name.startswith("."))
+    visible = sorted(p for p in root.rglob("*") if p.is_file()
+                     and not any(s.startswith(".") for s in p.relative_to(root).parts))
+    files = [p for p in visible if p.suffix.lower() in RECORDING_SUFFIXES]
+    skipped = [p for p in visible if p.suffix.lower() not in RECORDING_SUFFIXES]
     if role is not None:
-        return [(p, _check_role(role)) for p in files]
+        plan = [(p, _check_role(role)) for p in files]
+        return (plan, skipped) if with_skipped else plan
     out: list[tuple[Path, str | None]] = []
     for p in files:
         parts = [s.lower() for s in p.relative_to(root).parts[:-1]]
@@ -211,7 +261,7 @@ def folder_plan(folder: str | Path, role: str | None = None) -> list[tuple[Path,
         else:
             r = None
         out.append((p, r))
-    return out
+    return (out, skipped) if with_skipped else out
 
 
 def _sys(name: str) -> str:

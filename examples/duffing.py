@@ -159,7 +159,7 @@ def finish(est: Siva, train: list[Recording], val: list[Recording], truth: Mappi
         Path(args.json).write_text(json.dumps(est.result_.to_json(), indent=2) + "\n")
         print(f"JSON: {args.json}")
     if args.report:
-        from siva_core._impl.report import write_report
+        from siva_core import write_report
 
         t0 = time.perf_counter()
         paths = write_report(est, Path(args.report), truth=truth, train=train, val=val)

@@ -14,7 +14,7 @@ Model ``examples/models/silverbox.toml`` (mass-normalised, volts):
    y by 6th-order central differences after a zero-phase low-pass (``--lowpass``, Hz), every
    signal given the same filter (``Processing(lowpass_diff=..., consistent=True)``).  All
    five parameters enter linearly, so this is one linear solve.
-2. Output-error refinement (``siva_core._impl.refine.refine``): free-run simulation of the
+2. Output-error refinement (``siva_core.refine``): free-run simulation of the
    estimation segment (or its first ``--fraction``) from the least-squares start, the
    input interpolated between samples by a cubic spline (``--interp``): at 610 Hz the
    band-limited input is sampled only ~3x per period of its highest lines, and straight
@@ -43,9 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from siva_core import Processing, Recording, Structure  # noqa: E402
-from siva_core._impl.refine import refine  # noqa: E402
-from siva_core._impl.simulate import simulate  # noqa: E402
+from siva_core import Processing, Recording, Structure, refine, simulate  # noqa: E402
 
 FS = 1e7 / 2 ** 14
 ESTIMATION = (40650, 105712)

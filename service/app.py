@@ -13,6 +13,7 @@ import contextlib
 import json
 import logging
 import threading
+import time
 from typing import Any, AsyncIterator
 
 from fastapi import FastAPI, Request
@@ -21,28 +22,18 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from siva_core._impl.recording import RecordingError
-from siva_core._impl.structure import SpecError, Structure
+from siva_core import RecordingError, SpecError, Structure
+from siva_core import RecordingTooLarge
 
+from .errors import ApiError, UploadTooLarge
+from .routes import router
+from .limits import LimitError, check_sampling_rate, check_structure
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
-from .worker import SystemWorker, parse_upload
+from .uploads import parse_upload
+from .worker import SystemWorker
 
 log = logging.getLogger("siva.service")
-
-
-class ApiError(Exception):
-    """A refusal with an HTTP status and a detail naming what is wrong and where."""
-
-    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-        self.headers = headers
-
-
-class UploadTooLarge(Exception):
-    pass
 
 
 # --------------------------------------------------------------------------- event log hook
@@ -51,6 +42,7 @@ class _NoEvents:
 
     def log_spec(self, *a: Any, **k: Any) -> None: ...
     def log_recording(self, *a: Any, **k: Any) -> None: ...
+    def rotate(self, *a: Any, **k: Any) -> None: ...
     def log_dataset(self, *a: Any, **k: Any) -> None: ...
     def log_snapshot(self, *a: Any, **k: Any) -> None: ...
     def close(self) -> None: ...
@@ -82,6 +74,12 @@ class SivaService:
         self.workers: dict[str, SystemWorker] = {}
         self.broken: dict[str, str] = {}
         self._lock = threading.Lock()
+        # supervision: a trainer thread that died is replaced (from its checkpoint) after
+        # a back-off; until then /healthz says so
+        self._dead: dict[str, tuple[float, int, str]] = {}  # name -> (since, restarts, why)
+        self._stopping = threading.Event()
+        self._supervisor = threading.Thread(target=self._supervise, name="siva-supervisor",
+                                            daemon=True)
 
     def start(self) -> None:
         if self.settings.torch_threads:
@@ -90,7 +88,7 @@ class SivaService:
             torch.set_num_threads(self.settings.torch_threads)
         self.events = _make_event_log(self.settings)
         try:  # import torch and the trainer now, not inside the first PUT
-            import siva_core._impl.training  # noqa: F401
+            from siva_core import SivaTrainer  # noqa: F401
         except Exception:  # noqa: BLE001 - the workers report it per system
             log.exception("cannot import the trainer")
         for name in self.store.load():
@@ -105,16 +103,74 @@ class SivaService:
             self._start_worker(name, structure)
         log.info("service started: %d system(s) from %s", len(self.structures),
                  self.settings.data_dir)
+        self._supervisor.start()
 
     def stop(self) -> None:
+        """Stop every trainer (final checkpoints), waiting at most ``stop_timeout_s`` in all:
+        SIGTERM must not hang on an epoch; what is not saved now is redone from the last
+        checkpoint and the logged data on the next start."""
+        self._stopping.set()
         with self._lock:
             workers = list(self.workers.values())
         for w in workers:
             w._stop.set()
             w._wake.set()
+        deadline = time.monotonic() + self.settings.stop_timeout_s
         for w in workers:
-            w.stop()
+            w.stop(timeout=max(0.0, deadline - time.monotonic()))
+        late = [w.name for w in workers if w.alive]
+        if late:
+            log.warning("stopping without waiting for the trainer(s) of %s", ", ".join(late))
         self.events.close()
+
+    # ------------------------------------------------------------------ supervision
+    def _supervise(self) -> None:
+        """Replace dead trainer threads, with a back-off (2 s, 4 s, ... at most 60 s)."""
+        while not self._stopping.wait(1.0):
+            with self._lock:
+                items = list(self.workers.items())
+            for name, w in items:
+                if not _died(w):
+                    continue
+                since, restarts, _ = self._dead.get(name, (time.monotonic(), 0, ""))
+                why = f"trainer thread of {name!r} died ({w._error or 'unexpected exit'})"
+                self._dead[name] = (since, restarts, why)
+                if time.monotonic() - since < min(60.0, 2.0 * 2 ** restarts):
+                    continue
+                log.error("%s; restarting it from its checkpoint", why)
+                self._safe_event("rotate", name)  # a new log segment: replay stitches it
+                with self._lock:
+                    if self.workers.get(name) is not w or self._stopping.is_set():
+                        continue
+                    structure = self.structures[name]
+                try:
+                    self._start_worker(name, structure)
+                    w.stop(timeout=0.0)  # the dead one's refiner thread ends too
+                except Exception:  # noqa: BLE001 - try again later
+                    log.exception("restarting the trainer of %s failed", name)
+                self._dead[name] = (time.monotonic(), restarts + 1, why)
+
+    def health_problems(self) -> list[str]:
+        """Why the service is not healthy (empty: healthy) - for GET /healthz."""
+        problems: list[str] = []
+        now = time.monotonic()
+        with self._lock:
+            items = list(self.workers.items())
+        for name, w in items:
+            if w._stop.is_set():
+                continue
+            if _died(w):
+                problems.append(f"system {name!r}: trainer thread is dead "
+                                f"({w._error or 'unexpected exit'}); restarting")
+                continue
+            beat = getattr(w, "heartbeat", None)
+            if beat is not None and now - beat > self.settings.stuck_after_s:
+                problems.append(f"system {name!r}: trainer stuck, no progress for "
+                                f"{now - beat:.0f} s (SIVA_STUCK_AFTER_S)")
+            err = getattr(w, "checkpoint_error", None)
+            if err:
+                problems.append(f"system {name!r}: cannot write checkpoints ({err})")
+        return problems
 
     def _start_worker(self, name: str, structure: Structure) -> None:
         w = SystemWorker(name, structure, self.store, self.settings, self.events)
@@ -141,9 +197,13 @@ class SivaService:
     def put_system(self, name: str, spec: Any) -> tuple[bool, Structure]:
         try:
             structure = Structure.from_dict(spec)
+            check_structure(structure, self.settings)
+        except LimitError as exc:
+            raise ApiError(exc.status, exc.detail) from None
         except SpecError as exc:
             raise ApiError(422, f"model spec: {exc}") from None
-        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        except (TypeError, ValueError, KeyError, AttributeError, OverflowError,
+                RecursionError) as exc:
             # a shape Structure.from_dict did not anticipate (e.g. a list where a name is
             # expected): still the spec's fault; logged so the message can be improved
             log.warning("spec for %s refused by an unanticipated check", name, exc_info=True)
@@ -157,6 +217,9 @@ class SivaService:
                 created = self.store.put_spec(name, spec)
             except SpecConflict as exc:
                 raise ApiError(409, str(exc)) from None
+            except OSError as exc:
+                log.error("cannot store the spec of %s: %s", name, exc)
+                raise ApiError(507, _storage_detail("the spec", exc)) from None
             if not created:
                 return False, self.structures.get(name, structure)
             self.structures[name] = structure
@@ -165,16 +228,30 @@ class SivaService:
         return True, structure
 
     def delete_system(self, name: str) -> None:
+        """Stop the trainer (at most ``stop_timeout_s``), then delete atomically.  A delete
+        the disk refuses (507) changes nothing: the trainer is started again."""
         with self._lock:
-            w = self.workers.pop(name, None)
-            self.structures.pop(name, None)
-            self.broken.pop(name, None)
+            w = self.workers.get(name)
         if w is not None:
-            w.stop()
+            w.stop(timeout=self.settings.stop_timeout_s)
         try:
             self.store.delete_system(name)
         except UnknownSystem as exc:
             raise ApiError(404, str(exc)) from None
+        except OSError as exc:
+            log.error("cannot delete %s: %s", name, exc)
+            with self._lock:
+                structure = self.structures.get(name)
+                restart = structure is not None and self.workers.get(name) is w
+            if restart:
+                self._start_worker(name, structure)
+            raise ApiError(507, _storage_detail("the deletion", exc)) from None
+        with self._lock:
+            if self.workers.get(name) is w:
+                self.workers.pop(name, None)
+            self.structures.pop(name, None)
+            self.broken.pop(name, None)
+        self._dead.pop(name, None)
 
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
                       filename: str) -> dict[str, Any]:
@@ -182,21 +259,32 @@ class SivaService:
         w = self.worker(name)
         try:
             info = parse_upload(w.structure, raw, fmt, filename)
+            check_sampling_rate(float(info.get("fs", 0.0)), filename, self.settings)
+        except RecordingTooLarge as exc:
+            raise ApiError(413, str(exc)) from None
         except RecordingError as exc:
             raise ApiError(422, str(exc)) from None
+        except LimitError as exc:
+            raise ApiError(exc.status, exc.detail) from None
+
+        def write_ahead(meta: Any) -> None:
+            # the log entry is durable before the store commits and before the 202: every
+            # acknowledged recording is in the log (a failure here aborts the upload)
+            self.events.log_recording(name, meta.id, meta.role, raw, fmt, w.epoch,
+                                      name=filename)
+
         try:
             meta, duplicate = self.store.add_recording(name, raw, role=role, fmt=fmt,
-                                                       filename=filename, info=info)
+                                                       filename=filename, info=info,
+                                                       before_commit=write_ahead)
         except DuplicateConflict as exc:
             raise ApiError(409, str(exc)) from None
         except UnknownSystem as exc:  # deleted while we parsed
             raise ApiError(404, str(exc)) from None
         except OSError as exc:
-            log.exception("cannot store a recording of %s", name)
-            raise ApiError(507, f"cannot store the recording: {exc.strerror or exc}") from None
+            log.error("cannot store a recording of %s: %s", name, exc)
+            raise ApiError(507, _storage_detail("the recording", exc)) from None
         if not duplicate:
-            self._safe_event("log_recording", name, meta.id, meta.role, raw, fmt, w.epoch,
-                             name=filename)
             w.notify()
         return {**meta.to_dict(), "duplicate": duplicate, "warnings": info["warnings"]}
 
@@ -205,6 +293,22 @@ class SivaService:
             return self.store.counts(name)
         except UnknownSystem as exc:
             raise ApiError(404, str(exc)) from None
+
+
+def _died(w: SystemWorker) -> bool:
+    """The trainer thread was started and ended without being asked to stop (a worker still
+    restoring its checkpoint in ``start`` has not started its thread yet: not dead)."""
+    t = w._thread
+    return t.ident is not None and not t.is_alive() and not w._stop.is_set()
+
+
+def _storage_detail(what: str, exc: OSError) -> str:
+    import errno
+
+    why = {errno.ENOSPC: "the disk is full", errno.EDQUOT: "the disk quota is exceeded",
+           errno.EROFS: "the data directory is read-only"}.get(exc.errno or 0,
+                                                              exc.strerror or str(exc))
+    return f"cannot store {what}: {why}; nothing was changed, retry later"
 
 
 # --------------------------------------------------------------------------- middleware
@@ -286,16 +390,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             service.stop()
 
-    app = FastAPI(title="siva", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="siva", version="0.1.0", lifespan=lifespan, docs_url=None,
                   description="Streaming structural system identification (SIVA). "
                               "See docs/service.md.")
     app.state.service = service
     app.state.settings = settings
 
-    from .routes import router
-
     app.include_router(router)
-    from .routes_diagnosis import router as diagnosis_router  # noqa: E402
+    from . import dashboard, metrics
+
+    dashboard.install(app)  # GET /, /docs (offline Swagger UI), /static, latest-record
+    from .routes_diagnosis import router as diagnosis_router
 
     app.include_router(diagnosis_router)
 
@@ -332,6 +437,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        "this is a bug, it has been logged"}, status_code=500)
 
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
+    metrics.install(app, service)  # GET /metrics; its middleware outermost (counts 413s too)
     return app
 
 

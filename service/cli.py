@@ -1,4 +1,8 @@
-"""`siva serve` and `siva replay`: argument handling only, the work lives elsewhere."""
+"""`siva serve` and `siva replay`: argument handling only, the work lives elsewhere.
+
+:data:`COMMANDS` is what the service adds to the ``siva`` program (``siva_cli``); the
+library (``siva_core.cli``) never imports this module.
+"""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +10,30 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from siva_core.cli import Command
+
 log = logging.getLogger("siva.service")
+
+
+def _serve_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--data-dir", default="./siva-data")
+    p.add_argument("--demo", action="store_true", help="stream a built-in simulated LO-NO rig")
+
+
+def _replay_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="LOG.mcap")
+    p.add_argument("--out", help="write JSON here instead of stdout")
+
+
+#: the service's subcommands of ``siva``
+COMMANDS: tuple[Command, ...] = (
+    Command("serve", "run the streaming identification service", _serve_args,
+            "service.cli:serve_command"),
+    Command("replay", "re-run a service MCAP log, print the final estimate", _replay_args,
+            "service.cli:replay_command"),
+)
 
 
 def serve_command(args: argparse.Namespace) -> int:
@@ -29,6 +56,10 @@ def serve_command(args: argparse.Namespace) -> int:
     if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
         data_dir = None  # the parser's default: let the environment decide
     settings = Settings.from_env(data_dir=data_dir)
+    if os.environ.get("SIVA_REQUIRE_TOKEN", "0").strip() not in ("", "0") and not settings.api_token:
+        log.error("SIVA_REQUIRE_TOKEN is set but SIVA_API_TOKEN is not: refusing to serve an "
+                  "open API (set SIVA_API_TOKEN, or SIVA_REQUIRE_TOKEN=0 to run without one)")
+        return 2
     app = create_app(settings)
     if getattr(args, "demo", False):
         _start_demo(args.host, args.port, settings)

@@ -111,31 +111,12 @@ def simulate_impact(theta: dict[str, float], amplitude: float, rng: np.random.Ge
 
 
 def _simulate(structure: Any, theta: np.ndarray, t: np.ndarray, force: np.ndarray) -> np.ndarray:
-    """Accelerations (T, n_dof) from rest.  The project's RK4 simulator with automatic
-    substeps (accurate to ~1e-7, far below the 0.3 % noise); scipy as a fallback."""
-    try:
-        from siva_core._impl.simulate import simulate
-    except ImportError:  # pragma: no cover - only before simulate.py existed
-        return _simulate_scipy(structure, theta, t, force)
+    """Accelerations (T, n_dof) from rest: the project's RK4 simulator with automatic
+    substeps (accurate to ~1e-7, far below the 0.3 % noise)."""
+    from siva_core import simulate
+
     z = np.zeros(structure.n_dof)
     return np.asarray(simulate(structure, theta, t, z, z, force, substeps="auto").a)
-
-
-def _simulate_scipy(structure: Any, theta: np.ndarray, t: np.ndarray, force: np.ndarray
-                    ) -> np.ndarray:
-    from scipy.integrate import solve_ivp
-
-    n = structure.n_dof
-
-    def rhs(tt: float, y: np.ndarray) -> np.ndarray:
-        f = np.array([np.interp(tt, t, force[:, k]) for k in range(n)])
-        a = structure.accelerations(theta, y[:n], y[n:], f)
-        return np.concatenate([y[n:], a])
-
-    sol = solve_ivp(rhs, (t[0], t[-1]), np.zeros(2 * n), t_eval=t, method="DOP853",
-                    rtol=1e-9, atol=1e-12, max_step=(t[1] - t[0]))
-    q, v = sol.y[:n].T, sol.y[n:].T
-    return structure.accelerations(theta, q, v, force)
 
 
 def to_csv(cols: dict[str, np.ndarray]) -> bytes:
@@ -220,6 +201,13 @@ class DemoStreamer(threading.Thread):
                     # record it waits for data, and waiting for it here would deadlock)
                     training = est is not None and est.get("state") in ("training", "converged")
                     if i > 0 and training and epoch - last_epoch < cfg.min_epochs_between:
+                        self._halt.wait(min(cfg.interval_s, 0.5))
+                        continue
+                    # once monitoring runs, never more than two records ahead of it (each
+                    # record is fitted once; on a slow machine the story stays the same)
+                    mon = (est or {}).get("monitoring") or {}
+                    if (i > 0 and mon.get("processed_index") is not None
+                            and mon["processed_index"] >= 0 and mon["processed_index"] < i - 2):
                         self._halt.wait(min(cfg.interval_s, 0.5))
                         continue
                     if (self.drop_index is None and i >= cfg.drop_after

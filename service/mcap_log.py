@@ -21,8 +21,14 @@ to below the size of the raw CSV.
 
 Crash safety: every message is written as one complete chunk, then the file is flushed and
 fsync'ed, so a process killed mid-write loses at most the message being written.  A file
-without footer (the process died) is still readable (:func:`read_events` stops at the last
-complete record) and :func:`recover` rewrites it as a finished file.
+without footer (the process died) is still readable (:func:`read_events` keeps every
+complete record, resynchronising after a torn one) and :func:`recover` rewrites it as a
+finished file.  A write that fails (disk full, read-only) abandons the file - its tail may
+be torn - and the next event opens a new file that starts with the spec again.
+
+Write-ahead: the service logs a recording *before* the store commits it and before the
+HTTP 202, and a failed log write fails the upload (507), so every acknowledged recording
+is in the log of its system (see docs/reliability.md).
 """
 from __future__ import annotations
 
@@ -46,6 +52,8 @@ from mcap.stream_reader import MAGIC_SIZE, StreamReader
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
+from siva_core import MCAP_MAGIC
+
 log = logging.getLogger("siva.mcap_log")
 
 FORMAT_VERSION = "siva-log/1"
@@ -53,7 +61,7 @@ TOPIC_SPEC = "/siva/spec"
 TOPIC_RECORDING = "/siva/recording"
 TOPIC_DATASET = "/siva/dataset"
 TOPIC_SNAPSHOT = "/siva/snapshot"
-MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
+MAGIC = MCAP_MAGIC
 _FOOTER_OPCODE = 0x02
 _FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
 
@@ -150,16 +158,21 @@ class _SystemLog:
         self._fh = open(path, "xb")
         # chunk_size=1: every message closes its own (compressed, CRC'd) chunk immediately,
         # so nothing sits in a buffer when the process dies.
-        self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
-        self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
-                                           **{k: str(v) for k, v in metadata.items()}})
+        try:
+            self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
+            self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
+            self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
+                                               **{k: str(v) for k, v in metadata.items()}})
+            self._sync()
+        except BaseException:  # e.g. disk full: leave no headless file behind
+            self.abandon()
+            path.unlink(missing_ok=True)
+            raise
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time = 0
         self.lock = threading.Lock()  # one writer at a time per file; files are independent
         self.has_spec = False
-        self._sync()
 
     def _channel(self, topic: str) -> int:
         if topic not in self._channels:
@@ -190,6 +203,14 @@ class _SystemLog:
         self._sync()
         self._fh.close()
 
+    def abandon(self) -> None:
+        """Close without a footer after a failed write (its tail may be torn; the records
+        before it are complete and fsync'ed; :func:`recover` finishes it at the next start)."""
+        try:
+            self._fh.close()
+        except OSError:
+            pass
+
 
 class EventLog:
     """Append-only MCAP event logs for all systems of one service process.
@@ -207,6 +228,8 @@ class EventLog:
         self.settings = dict(settings or {})
         self._lock = threading.Lock()
         self._logs: dict[str, _SystemLog] = {}
+        self._specs: dict[str, SpecEvent] = {}  # re-logged first in every new file
+        self._opened: set[str] = set()          # systems that had a file in this process
         self._closed = False
         self._started = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
         self.recovered: list[Path] = []
@@ -231,6 +254,20 @@ class EventLog:
         ev = SpecEvent(system=system, spec=json.loads(json.dumps(dict(spec_dict))),
                        settings={**self.settings, **(settings or {})}, wall_time=time.time())
         self._write(system, TOPIC_SPEC, ev)
+        self._specs[system] = ev
+
+    def rotate(self, system: str) -> None:
+        """Finish the current file of ``system``; its next event opens a new one (e.g. when
+        a trainer restarts from its checkpoint: a new segment, as after a process restart)."""
+        with self._lock:
+            sl = self._logs.pop(system, None)
+        if sl is not None:
+            with sl.lock:
+                try:
+                    sl.close()
+                except OSError as exc:
+                    log.warning("cannot finish %s: %s", sl.path, exc)
+                    sl.abandon()
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
                       epoch: int, name: str | None = None) -> None:
@@ -280,6 +317,10 @@ class EventLog:
 
     # -- internals
     def _write(self, system: str, topic: str, event: BaseModel) -> None:
+        """Append one event durably, or raise (OSError: disk full, read-only).
+
+        After a failed write the file is abandoned - its tail may be a torn chunk - and the
+        next event starts a new file (spec first), so later events stay readable."""
         retired: _SystemLog | None = None
         with self._lock:
             if self._closed:
@@ -291,9 +332,12 @@ class EventLog:
                 # A new file keeps "one file = one incarnation" for replay.
                 retired, sl = sl, None
             if sl is None:
-                stamp = (self._started if retired is None else
+                stamp = (self._started if retired is None and system not in self._opened else
                          datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ"))
+                self._opened.add(system)
                 path = self.root / _safe(system) / f"{stamp}-{os.getpid()}.mcap"
+                while path.exists():  # a replacement within the same microsecond
+                    path = path.with_name(f"{path.stem}x.mcap")
                 sl = _SystemLog(path, system, {"started": self._started, "pid": os.getpid(),
                                                **{f"settings.{k}": v
                                                   for k, v in self.settings.items()}})
@@ -303,9 +347,19 @@ class EventLog:
             if retired is not None:
                 with retired.lock:
                     retired.close()
+            spec = self._specs.get(system)
+            if not sl.has_spec and topic != TOPIC_SPEC and spec is not None:
+                sl.write(TOPIC_SPEC, spec)  # a replacement file stays self-contained
+                sl.has_spec = True
             sl.write(topic, event)
             if topic == TOPIC_SPEC:
                 sl.has_spec = True
+        except BaseException:
+            with self._lock:
+                if self._logs.get(system) is sl:
+                    del self._logs[system]
+            sl.abandon()
+            raise
         finally:
             sl.lock.release()
 
@@ -368,55 +422,108 @@ def is_finished(path: str | Path) -> bool:
     return tail[-MAGIC_SIZE:] == MAGIC and tail[0] == _FOOTER_OPCODE
 
 
-def _complete_prefix(raw: bytes) -> int:
-    """Byte length of the leading run of complete, parseable records (after the magic).
+def _record_ok(raw: bytes, pos: int, end: int) -> bool:
+    """Whether ``raw[pos:end]`` is one record mcap's stream reader parses (CRCs checked)."""
+    try:
+        for _ in StreamReader(io.BytesIO(raw[pos:end]), skip_magic=True,
+                              validate_crcs=True).records:
+            pass
+    except EndOfFile:
+        pass
+    except Exception:  # noqa: BLE001 - any unparseable record is not a good one
+        return False
+    return True
+
+
+def _record_end(raw: bytes, pos: int) -> int | None:
+    """End of the record framed at ``pos`` if it fits in the file (opcode 0: no record)."""
+    if pos + 9 > len(raw) or raw[pos] == 0:
+        return None
+    (length,) = struct.unpack_from("<Q", raw, pos + 1)
+    end = pos + 9 + length
+    return end if end <= len(raw) else None
+
+
+def _good_records(raw: bytes) -> list[tuple[int, int]]:
+    """Byte ranges of the complete, parseable records (after the magic), in file order.
 
     Record framing is checked by hand (opcode + length must fit in the file; opcode 0 - what
-    a crash leaves in pre-allocated space - ends the data) and each record is then parsed
-    by mcap's own stream reader, with CRC checks, so a torn last chunk is cut off.
+    a crash leaves in pre-allocated space - is no record) and each record is then parsed
+    by mcap's own stream reader, with CRC checks.  A torn or corrupt record does not end
+    the file: the scan resynchronises at the next chunk that parses with a valid CRC, so
+    events written after a torn chunk stay readable.
     """
+    if len(raw) < MAGIC_SIZE and MAGIC.startswith(raw):
+        return []  # died while writing the magic: an empty log
     if raw[:MAGIC_SIZE] != MAGIC:
         raise McapError("not an MCAP file (bad magic)")
+    good: list[tuple[int, int]] = []
     pos = MAGIC_SIZE
     n = len(raw)
+    resynced = False  # after damage only CRC-checked chunks are trusted
     while pos + 9 <= n:
-        opcode = raw[pos]
-        (length,) = struct.unpack_from("<Q", raw, pos + 1)
-        end = pos + 9 + length
-        if opcode == 0 or end > n:
-            break
+        if resynced and raw[pos] != _CHUNK_OPCODE:
+            pos = _resync(raw, pos)
+            continue
+        end = _record_end(raw, pos)
+        if end is not None and _record_ok(raw, pos, end):
+            good.append((pos, end))
+            if raw[pos] == _FOOTER_OPCODE:
+                break
+            pos = end
+            continue
+        resynced = True
+        pos = _resync(raw, pos + 1)
+    return good
+
+
+_CHUNK_OPCODE = 0x06
+
+
+def _resync(raw: bytes, start: int) -> int:
+    """The next position at or after ``start`` where a complete chunk parses, else EOF."""
+    pos = raw.find(bytes([_CHUNK_OPCODE]), start)
+    while pos != -1:
+        end = _record_end(raw, pos)
+        if end is not None and _record_ok(raw, pos, end):
+            return pos
+        pos = raw.find(bytes([_CHUNK_OPCODE]), pos + 1)
+    return len(raw)
+
+
+def _good_bytes(raw: bytes) -> tuple[list[Any], int]:
+    """The records of the good ranges, parsed range by range (a range that parses alone
+    but not in sequence is dropped, not fatal), and how many bytes were kept."""
+    records: list[Any] = []
+    kept = MAGIC_SIZE
+    for a, b in _good_records(raw):
+        recs: list[Any] = []
         try:
-            for _ in StreamReader(io.BytesIO(raw[pos:end]), skip_magic=True,
-                                  validate_crcs=True).records:
-                pass
+            for rec in StreamReader(io.BytesIO(raw[a:b]), skip_magic=True,
+                                    validate_crcs=True).records:
+                recs.append(rec)
         except EndOfFile:
             pass
-        except Exception:  # noqa: BLE001 - any unparseable record ends the good data
-            break
-        pos = end
-        if opcode == _FOOTER_OPCODE:
-            break
-    return pos
+        except Exception:  # noqa: BLE001 - damaged: skip this record only
+            continue
+        records.extend(recs)
+        kept += b - a
+    return records, kept
 
 
 def iter_raw(path: str | Path) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """(schema, channel, message) in file order; tolerant of a missing footer."""
-    raw = Path(path).read_bytes()
-    end = _complete_prefix(raw)
+    records, _kept = _good_bytes(Path(path).read_bytes())
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    reader = StreamReader(io.BytesIO(raw[:end]), skip_magic=False)
-    try:
-        for rec in reader.records:
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Message) and rec.channel_id in channels:
-                ch = channels[rec.channel_id]
-                yield schemas.get(ch.schema_id), ch, rec
-    except EndOfFile:
-        return
+    for rec in records:
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            channels[rec.id] = rec
+        elif isinstance(rec, Message) and rec.channel_id in channels:
+            ch = channels[rec.channel_id]
+            yield schemas.get(ch.schema_id), ch, rec
 
 
 def read_events(path: str | Path) -> list[LogEvent]:
@@ -441,13 +548,7 @@ def recover(path: str | Path) -> Path:
     if is_finished(path):
         return path
     raw = path.read_bytes()
-    end = _complete_prefix(raw)
-    records = []
-    try:
-        for rec in StreamReader(io.BytesIO(raw[:end])).records:
-            records.append(rec)
-    except EndOfFile:
-        pass
+    records, end = _good_bytes(raw)
     tmp = path.with_name(path.name + ".recovering")
     with open(tmp, "wb") as fh:
         w = Writer(fh, chunk_size=1, compression=CompressionType.ZSTD)

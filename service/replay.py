@@ -125,7 +125,7 @@ def _plan(files: Sequence[Path]) -> _Plan:
         snaps = [s for seg in segments for s in seg.of(TOPIC_SNAPSHOT)]
         final_snap = snaps[-1] if snaps else None
     for seg in segments if exact else []:
-        seg_sets = _segment_datasets(seg)
+        seg_sets = _segment_datasets(seg, final=seg is segments[-1])
         snaps = seg.of(TOPIC_SNAPSHOT)
         if seg_sets:
             start = seg_sets[0].epoch
@@ -157,11 +157,20 @@ def _plan(files: Sequence[Path]) -> _Plan:
                  [str(f) for f in files], exact)
 
 
-def _segment_datasets(seg: _Segment) -> list[_DataSet]:
+def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
     """The data-set changes of one log, each with the processing chain it used: logged with
-    the event, else the one the next snapshot on the same records reports (``data``)."""
+    the event, else the one the next snapshot on the same records reports (``data``).
+
+    The ``final`` log, when it has snapshots, ends for replay at its last one: data-set
+    changes logged after it (a process killed before publishing again) describe training
+    nobody saw, and replaying them would run past the published estimate.  (In an earlier
+    log they stay: a checkpoint taken after them carries their effect into the next log.)"""
     out: list[_DataSet] = []
-    for k, le in enumerate(seg.events):
+    last_snap = len(seg.events)
+    if final:
+        last_snap = max((k for k, le in enumerate(seg.events) if le.topic == TOPIC_SNAPSHOT),
+                        default=last_snap)
+    for k, le in enumerate(seg.events[:last_snap]):
         if le.topic != TOPIC_DATASET:
             continue
         d = le.event
@@ -226,7 +235,7 @@ class _Replayer:
         self._recs: dict[str, Any] = {}
 
     def recording(self, rid: str) -> Any:
-        from siva_core._impl.recording import Recording
+        from siva_core import Recording
 
         if rid not in self._recs:
             ev = self.plan.recordings.get(rid)
@@ -242,9 +251,9 @@ class _Replayer:
     def states(self, ds: _DataSet) -> tuple[list[Any], list[Any]]:
         """Exactly the worker's refresh: the logged chain (or one chosen, as the worker
         does, on all selected records) applied to each record."""
-        from siva_core._impl.processing import Processing
+        from siva_core import Processing
 
-        from .worker import processing_for
+        from .uploads import processing_for
 
         train, val = ds.train, ds.validation
         recs = [self.recording(i) for i in train + val]
@@ -281,19 +290,39 @@ class _Replayer:
         return trainer, last_log
 
 
-def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None
-           ) -> dict[str, Any]:
+def _counting(factory: Any, progress: Any) -> Any:
+    """``factory`` whose trainers report each epoch to ``progress.update(epoch)``."""
+    def make(*args: Any) -> Any:
+        trainer = factory(*args)
+        run_epoch = trainer.run_epoch
+
+        def counted() -> Any:
+            log = run_epoch()
+            progress.update(trainer.epoch)
+            return log
+
+        trainer.run_epoch = counted
+        return trainer
+    return make
+
+
+def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None,
+           progress: bool = False) -> dict[str, Any]:
     """Re-run the log(s) and return the final estimate in the shape of GET .../estimate.
 
     Extra key ``replay``: the files, the epochs trained, and how the result compares with
     the last snapshot the live service logged (``max_diff_in_std``: the largest difference
     of a parameter mean, in units of that parameter's std; 0 when identical).
     """
-    from .worker import estimate_parameters, estimate_view, jsonable
+    from .estimate import estimate_parameters, estimate_view, jsonable
 
     files = log_files(path)
     plan = _plan(files)
     rp = _Replayer(plan, trainer_factory)
+    if progress:  # stderr lines "replay: epoch 120/600 (20 %), ..., ETA 14 s"
+        from siva_core import EpochProgress
+
+        rp.factory = _counting(rp.factory, EpochProgress("replay", plan.final_epoch))
     trainer, _last = rp.run()
     if trainer is None:
         raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
@@ -302,7 +331,8 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
     snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
             "epoch": int(trainer.epoch), "converged": bool(trainer.converged),
-            "system": plan.spec.system}
+            "system": plan.spec.system, "ensemble": params, "ensemble_source": source,
+            **_logged_monitoring(plan.final_snapshot)}
     out = jsonable(estimate_view(snap, plan.counts))
     out["replay"] = jsonable({
         "files": plan.files, "epochs": int(trainer.epoch),
@@ -313,13 +343,32 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     return out
 
 
+def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
+    """The headline estimate and alarm history as the live service last logged them.
+
+    Monitoring (``best``, per-record fits, alarms) runs beside the trainer on its own
+    schedule, so it is reported from the log, not re-run: ``parameters`` is the logged
+    headline when it was ``best``; the replayed ensemble is under ``ensemble``."""
+    if snap is None:
+        return {}
+    est = snap.estimate_dict()
+    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate")
+           if k in est}
+    if est.get("estimate_source") == "best":
+        out.update(parameters=est.get("parameters") or {}, estimate_source="best")
+    if "drift" in est:
+        out["drift"] = est["drift"]
+    return out
+
+
 def _compare(out: dict[str, Any], snap: SnapshotEvent | None) -> dict[str, Any] | None:
     if snap is None:
         return None
-    logged = snap.estimate_dict().get("parameters") or {}
+    est = snap.estimate_dict()
+    logged = est.get("ensemble") or est.get("parameters") or {}
     worst = 0.0
     identical = snap.epoch == out["epoch"]
-    for p, s in out["parameters"].items():
+    for p, s in (out.get("ensemble") or out["parameters"]).items():
         ref = logged.get(p)
         if not ref or ref.get("mean") is None or s.get("mean") is None:
             identical = False
@@ -337,7 +386,7 @@ def write_replay(log: str | Path, out: str | Path | None = None) -> dict[str, An
     import json
     import sys
 
-    result = replay(log)
+    result = replay(log, progress=True)
     text = json.dumps(result, indent=2)
     if out:
         Path(out).write_text(text + "\n")

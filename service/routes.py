@@ -6,48 +6,59 @@ reads return the worker's latest published snapshot, so no route ever waits for 
 from __future__ import annotations
 
 import hmac
-import json
-import tomllib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from .app import ApiError, SivaService, UploadTooLarge
+from siva_core import media_types, resolve_format
+
+from .errors import ApiError, UploadTooLarge
+from .limits import LimitError, parse_spec_body
 from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                       RecordingList, SystemAck, SystemList, SystemSpec)
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
-from .worker import estimate_view
+from .estimate import estimate_view
+
+if TYPE_CHECKING:  # the app imports this module; at run time the request holds the service
+    from .app import SivaService
 
 router = APIRouter()
 
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorDetail, "description": text} for code, text in {
-        401: "a write without the bearer token (when SIVA_API_TOKEN is set)",
+        400: "unreadable body: malformed JSON, TOML or multipart, a bad Content-Length",
+        401: "no or a wrong bearer token (when SIVA_API_TOKEN is set; reads too with "
+             "SIVA_API_TOKEN_READS=1)",
         404: "unknown system or recording",
         409: "conflicting spec or role",
         413: "body above SIVA_MAX_UPLOAD_BYTES",
         415: "unsupported content type",
         422: "invalid spec, recording or parameter; the detail names what and where",
+        507: "the data directory is full or read-only: nothing was changed",
     }.items()}
 
-CONTENT_FORMATS = {
-    "text/csv": "csv", "application/csv": "csv", "text/plain": "csv",
-    "application/json": "json", "text/json": "json",
-    "application/x-npz": "npz", "application/npz": "npz",
-    "application/x-mcap": "mcap", "application/mcap": "mcap",
-}
-MCAP_MAGIC = b"\x89MCAP0\r\n"
+CONTENT_FORMATS = media_types()
 
 
-def service_of(request: Request) -> SivaService:
+def service_of(request: Request) -> "SivaService":
     return request.app.state.service
 
 
 def require_token(request: Request) -> None:
     """Writes need ``Authorization: Bearer <SIVA_API_TOKEN>`` when the token is set."""
+    _check_token(request, "writes")
+
+
+def require_read_token(request: Request) -> None:
+    """Reads need the token too when ``SIVA_API_TOKEN_READS=1`` (the data is not public)."""
+    if request.app.state.settings.token_for_reads:
+        _check_token(request, "reads")
+
+
+def _check_token(request: Request, what_needs: str) -> None:
     token = request.app.state.settings.api_token
     if not token:
         return
@@ -55,13 +66,13 @@ def require_token(request: Request) -> None:
     scheme, _, given = auth.partition(" ")
     if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), token.encode()):
         what = "missing" if not auth else "wrong or malformed"
-        raise ApiError(401, f"Authorization header {what}: writes need "
+        raise ApiError(401, f"Authorization header {what}: {what_needs} need "
                             "'Authorization: Bearer <SIVA_API_TOKEN>'",
                        headers={"WWW-Authenticate": "Bearer"})
 
 
 def check_name(name: str) -> str:
-    if not NAME_RE.match(name):
+    if not NAME_RE.fullmatch(name):
         raise ApiError(422, f"system name {name!r}: use 1-64 letters, digits, '_', '.' or '-', "
                             "starting with a letter or digit")
     return name
@@ -72,14 +83,21 @@ def _media_type(request: Request) -> str:
 
 
 # --------------------------------------------------------------------------- health, systems
-@router.get("/healthz", response_model=Health, tags=["service"])
-async def healthz(request: Request) -> dict[str, Any]:
+@router.get("/healthz", response_model=Health, tags=["service"],
+            responses={503: {"model": Health, "description": "a trainer is dead or stuck, or "
+                             "checkpoints cannot be written; `problems` says which and why"}})
+async def healthz(request: Request) -> Response:
+    """200 when every trainer runs and persists; 503 with the reasons otherwise."""
     svc = service_of(request)
-    return {"status": "ok", "systems": len(svc.workers),
-            "workers_alive": sum(w.alive for w in list(svc.workers.values()))}
+    problems = svc.health_problems()
+    body = {"status": "ok" if not problems else "unhealthy", "systems": len(svc.workers),
+            "workers_alive": sum(w.alive for w in list(svc.workers.values())),
+            "problems": problems}
+    return JSONResponse(body, status_code=503 if problems else 200)
 
 
-@router.get("/v1/systems", response_model=SystemList, tags=["systems"])
+@router.get("/v1/systems", response_model=SystemList, tags=["systems"],
+            dependencies=[Depends(require_read_token)])
 async def list_systems(request: Request) -> dict[str, Any]:
     svc = service_of(request)
     out = []
@@ -107,20 +125,24 @@ async def list_systems(request: Request) -> dict[str, Any]:
                 "application/toml": {"schema": {"type": "string"}}}}},
             dependencies=[Depends(require_token)])
 async def put_system(name: str, request: Request) -> Response:
-    """Register a system with its model spec (JSON; TOML accepted as application/toml)."""
+    """Register a system with its model spec (JSON; TOML accepted as application/toml).
+
+    Limits (413/422, docs/reliability.md): SIVA_MAX_SPEC_BYTES, SIVA_MAX_SPEC_DEPTH,
+    SIVA_MAX_DOFS, SIVA_MAX_ELEMENTS, SIVA_MAX_PARAMETERS, plausible masses and scales."""
     check_name(name)
-    raw = await request.body()
     media = _media_type(request)
     if media in ("application/toml", "text/toml", "application/x-toml"):
-        try:
-            spec = tomllib.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise ApiError(400, f"request body: invalid TOML ({exc})") from None
+        kind = "toml"
     elif media in ("", "application/json", "text/json"):
-        spec = _json_body(raw)
+        kind = "json"
     else:
         raise ApiError(415, f"Content-Type {media!r}: send the spec as application/json "
                             "(or application/toml)")
+    raw = await request.body()
+    try:
+        spec = parse_spec_body(raw, kind, request.app.state.settings)
+    except LimitError as exc:
+        raise ApiError(exc.status, exc.detail) from None
     svc = service_of(request)
     created, structure = await run_in_threadpool(svc.put_system, name, spec)
     body = {"name": name, "created": created, "dofs": structure.dofs,
@@ -128,19 +150,8 @@ async def put_system(name: str, request: Request) -> Response:
     return JSONResponse(body, status_code=201 if created else 200)
 
 
-def _json_body(raw: bytes) -> Any:
-    if not raw.strip():
-        raise ApiError(400, "request body is empty: expected the model spec as JSON")
-    try:
-        return json.loads(raw)
-    except json.JSONDecodeError as exc:
-        raise ApiError(400, f"request body: invalid JSON at line {exc.lineno}, column "
-                            f"{exc.colno}: {exc.msg}") from None
-    except (UnicodeDecodeError, RecursionError) as exc:
-        raise ApiError(400, f"request body: not readable JSON ({type(exc).__name__})") from None
-
-
-@router.get("/v1/systems/{name}", tags=["systems"], responses=_ERRORS)
+@router.get("/v1/systems/{name}", tags=["systems"], responses=_ERRORS,
+            dependencies=[Depends(require_read_token)])
 async def get_system(name: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
     w = svc.worker(name)
@@ -194,9 +205,8 @@ async def post_recording(
         fmt = fmt or _format_of(part_type, part_name, raw)
     else:
         if media and media not in CONTENT_FORMATS and media != "application/octet-stream":
-            raise ApiError(415, f"Content-Type {media!r} is not a recording format (text/csv, "
-                                "application/json, multipart/form-data, application/x-mcap, "
-                                "application/x-npz)")
+            raise ApiError(415, f"Content-Type {media!r} is not a recording format "
+                                f"({', '.join(CONTENT_FORMATS)}, multipart/form-data)")
         raw = await request.body()
         fmt = fmt or _format_of(media, filename, raw)
     filename = filename or f"upload.{fmt}"
@@ -227,21 +237,7 @@ def _format(fmt: str) -> str:
 
 def _format_of(media: str | None, filename: str | None, raw: bytes) -> str:
     """Format from the Content-Type, else the file suffix, else sniffing the bytes."""
-    if media and media in CONTENT_FORMATS:
-        return CONTENT_FORMATS[media]
-    if filename and "." in filename:
-        suffix = filename.rsplit(".", 1)[1].lower()
-        if suffix in FORMATS:
-            return suffix
-        if suffix == "txt":
-            return "csv"
-    if raw.startswith(MCAP_MAGIC):
-        return "mcap"
-    if raw.startswith(b"PK\x03\x04"):
-        return "npz"
-    if raw.lstrip()[:1] == b"{":
-        return "json"
-    return "csv"
+    return resolve_format(media, filename, raw)
 
 
 async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, Any]:
@@ -267,7 +263,8 @@ async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, A
 
 
 @router.get("/v1/systems/{name}/recordings", tags=["recordings"], response_model=RecordingList,
-            responses=_ERRORS)
+            responses=_ERRORS,
+            dependencies=[Depends(require_read_token)])
 async def list_recordings(name: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
     w = svc.worker(name)
@@ -282,7 +279,8 @@ async def list_recordings(name: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/v1/systems/{name}/recordings/{rid}", tags=["recordings"],
-            response_model=RecordingInfo, responses=_ERRORS)
+            response_model=RecordingInfo, responses=_ERRORS,
+            dependencies=[Depends(require_read_token)])
 async def get_recording(name: str, rid: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
     w = svc.worker(name)
@@ -295,7 +293,14 @@ async def get_recording(name: str, rid: str, request: Request) -> dict[str, Any]
             "in_memory": meta.id in set(data.get("train", [])) | set(data.get("validation", []))}
 
 
-@router.get("/v1/systems/{name}/recordings/{rid}/raw", tags=["recordings"], responses=_ERRORS)
+@router.get("/v1/systems/{name}/recordings/{rid}/raw", tags=["recordings"],
+            response_class=Response,
+            responses={200: {"description": "the uploaded bytes (Content-Type from the format)",
+                             "content": {t: {"schema": {"type": "string", "format": "binary"}}
+                                         for t in ("text/csv", "application/json",
+                                                   "application/x-npz", "application/x-mcap")}},
+                       **_ERRORS},
+            dependencies=[Depends(require_read_token)])
 async def get_recording_raw(name: str, rid: str, request: Request) -> Response:
     """The stored bytes, exactly as uploaded."""
     svc = service_of(request)
@@ -312,7 +317,8 @@ async def get_recording_raw(name: str, rid: str, request: Request) -> Response:
 
 # --------------------------------------------------------------------------- estimate, drift
 @router.get("/v1/systems/{name}/estimate", tags=["estimate"], response_model=Estimate,
-            responses=_ERRORS)
+            responses=_ERRORS,
+            dependencies=[Depends(require_read_token)])
 async def get_estimate(name: str, request: Request) -> dict[str, Any]:
     """The latest published estimate (never waits for training)."""
     svc = service_of(request)
@@ -321,7 +327,8 @@ async def get_estimate(name: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/v1/systems/{name}/drift", tags=["estimate"], response_model=DriftReport,
-            responses=_ERRORS)
+            responses=_ERRORS,
+            dependencies=[Depends(require_read_token)])
 async def get_drift(name: str, request: Request,
                     limit: int | None = Query(None, ge=1, description="last N snapshots only")
                     ) -> dict[str, Any]:

@@ -20,8 +20,7 @@ from typing import Any
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 
-from siva_core._impl.diagnose import DiagnoseSettings, diagnose, html_report
-from siva_core._impl.recording import Recording
+from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
 from .app import ApiError
 from .routes import service_of

@@ -85,40 +85,68 @@ class BestParameter(_Open):
 
 
 class Best(_Open):
-    """The recommended value of ``Siva.fit``: Approach III over the running ensemble, then
-    the output-error refinement through the processing chain (background thread)."""
+    """The output-error estimate: first ``recommend_best`` (Approach III over the running
+    ensemble, then the refinement; ``source = "recommend_best"``), then the precision-
+    weighted mean of the per-record fits over a recent window (``source = "records"``)."""
 
     parameters: dict[str, BestParameter]
-    epoch: int = Field(description="trainer epoch whose ensemble gave the candidates")
-    n_records: int = Field(description="most recent training records it was fitted on")
+    epoch: int = Field(description="trainer epoch when it was computed")
+    n_records: int = Field(description="records it was fitted on")
     time: float = Field(description="Unix time it was computed")
-    output_error: float | None = Field(description="normalised output error on those records")
+    output_error: float | None = Field(description="normalised output error on those records "
+                                                   "(recommend_best only)")
     refined: bool | None = Field(None, description="false: the refinement did not lower the "
                                                    "output error, Approach III's winner is kept")
+    source: str | None = Field(None, description="recommend_best | records")
+    records: list[str] | None = Field(None, description="ids of the records it used")
+
+
+class EstimateInfo(_Open):
+    source: str | None = Field(description="best | ensemble | generator")
+    time: float | None = Field(description="Unix time the published values were computed")
+    age_s: float | None = Field(description="seconds since then, at publication")
+    records: list[str] | None = Field(description="records behind the values (best)")
+    method: str | None
+    note: str | None
 
 
 class Estimate(_Open):
-    """GET .../estimate: the contract keys, plus state, modal, losses, data, alarms..."""
+    """GET .../estimate: the contract keys, plus state, modal, losses, data, alarms...
+
+    ``parameters`` is the headline: ``best`` once there is one, else the running ensemble
+    (``estimate_source`` says which); the ensemble itself is always under ``ensemble``."""
 
     parameters: dict[str, ParameterSummary]
     discriminator: dict[str, Any]
     epoch: int
     converged: bool
     n_recordings: dict[str, int]
-    best: Best | None = Field(None, description="output-error refinement of the ensemble "
-                                                "(null until the first one finished)")
+    estimate_source: str | None = Field(None, description="best | ensemble | generator")
+    estimate: EstimateInfo | None = None
+    ensemble: dict[str, dict[str, Any]] | None = Field(
+        None, description="the running Approach II ensemble {mean, std, ci95, ess, n}")
+    best: Best | None = Field(None, description="the output-error estimate (null until the "
+                                                "first one finished)")
+
+
+class ChangePoint(_Open):
+    record_index: int | None = Field(description="first record (store index) after the change")
+    interval_records: list[int | None] = Field(description="95 % set of change positions")
+    change: float = Field(description="mean after - mean before")
+    change_ci95: list[float]
 
 
 class Alarm(_Open):
     id: int
-    parameter: str
+    parameter: str = Field(description="the quantity: a parameter, or fK_hz / zetaK of mode K")
+    kind: Literal["parameter", "modal"] = "parameter"
+    state: Literal["raised", "confirmed", "cleared"]
     direction: Literal["decrease", "increase"]
     active: bool
     value: float | None
-    reference_mean: float | None
+    reference: float | None = Field(description="baseline centre")
     change_rel: float | None
-    first_epoch: int | None
-    epoch: int | None
+    change_point: ChangePoint | None = None
     message: str
 
 
@@ -132,12 +160,18 @@ class Snapshot(_Open):
 
 
 class DriftReport(_Open):
+    """The detector's rule and baseline (``reference``), every alarm with its state history
+    (``alarms``), the per-record estimates (``records``), the headline estimate, and the
+    history of published estimates (``history``)."""
+
     system: str
-    rule: dict[str, Any]
+    rule: dict[str, Any] | None
     reference: dict[str, Any] | None
     history: list[Snapshot]
     alarms: list[Alarm]
     active_alarms: list[str]
+    records: list[dict[str, Any]] = []
+    headline: dict[str, Any] | None = None
 
 
 class SystemSummary(_Open):
@@ -154,9 +188,11 @@ class SystemList(_Open):
 
 
 class Health(_Open):
-    status: Literal["ok"]
+    status: Literal["ok", "unhealthy"]
     systems: int
     workers_alive: int
+    problems: list[str] = Field(default_factory=list,
+                                description="why the service is unhealthy (503), one per problem")
 
 
 class ErrorDetail(BaseModel):

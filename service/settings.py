@@ -30,10 +30,26 @@ ENV_VARS: dict[str, str] = {
     "SIVA_DRIFT_CONSECUTIVE": "drift_consecutive",
     "SIVA_DRIFT_REL_TOL": "drift_rel_tol",
     "SIVA_DRIFT_REFERENCE_AFTER": "drift_reference_after",
+    "SIVA_DRIFT_BASELINE_RECORDS": "drift_baseline_records",
+    "SIVA_DRIFT_ARL0_RECORDS": "drift_arl0_records",
+    "SIVA_DRIFT_MIN_REL_SCATTER": "drift_min_rel_scatter",
+    "SIVA_HEADLINE_WINDOW": "headline_window",
+    "SIVA_RECORD_MAX_NFEV": "record_max_nfev",
+    "SIVA_IDLE_AFTER_EPOCHS": "idle_after_epochs",
     "SIVA_TORCH_THREADS": "torch_threads",
     "SIVA_REFINE_EVERY_S": "refine_every_s",
     "SIVA_REFINE_MAX_RECORDS": "refine_max_records",
     "SIVA_REFINE_CANDIDATES": "refine_candidates",
+    "SIVA_API_TOKEN_READS": "token_for_reads",
+    "SIVA_MAX_SPEC_BYTES": "max_spec_bytes",
+    "SIVA_MAX_SPEC_DEPTH": "max_spec_depth",
+    "SIVA_MAX_DOFS": "max_dofs",
+    "SIVA_MAX_ELEMENTS": "max_elements",
+    "SIVA_MAX_PARAMETERS": "max_parameters",
+    "SIVA_MIN_SAMPLING_RATE_HZ": "min_sampling_rate_hz",
+    "SIVA_MAX_SAMPLING_RATE_HZ": "max_sampling_rate_hz",
+    "SIVA_STOP_TIMEOUT_S": "stop_timeout_s",
+    "SIVA_STUCK_AFTER_S": "stuck_after_s",
 }
 
 
@@ -56,16 +72,35 @@ class Settings:
     checkpoint_every_s: float = 30.0    # seconds between durable trainer checkpoints
     idle_sleep_s: float = 0.5           # wait when there is nothing to train on
     epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
-    # Drift detection.
-    history_limit: int = 2000           # snapshots kept in the drift history
-    drift_consecutive: int = 5          # snapshots outside the reference band -> alarm
-    drift_rel_tol: float = 0.05         # minimum half-width of the band, relative to |mean|
-    drift_reference_after: int = 10     # converged snapshots before the reference is frozen
+    # Drift detection (service/detector.py: CUSUM on per-record estimates).
+    history_limit: int = 2000           # snapshots / per-record estimates kept
+    drift_baseline_records: int = 10    # first records forming the reference
+    drift_arl0_records: float = 20000.0 # nominal in-control ARL: 1000/this false alarms per 1000
+    drift_min_rel_scatter: float = 0.005  # changes well below this fraction are not alarmed
+    drift_consecutive: int = 5          # unused since the CUSUM rule (accepted for old configs)
+    drift_rel_tol: float = 0.05         # unused since the CUSUM rule
+    drift_reference_after: int = 10     # unused since the CUSUM rule
+    # Headline estimate and idling.
+    headline_window: int = 8            # per-record fits averaged into the headline
+    record_max_nfev: int = 20           # cost evaluations of one per-record fit
+    idle_after_epochs: int = 200        # converged + data unchanged this long: pause; 0: never
     torch_threads: int = 0              # 0: torch's default
     # Output-error refinement (``best``), in a background thread per system.
-    refine_every_s: float = 60.0        # at most this often on unchanged data; 0: off
+    refine_every_s: float = 60.0        # first best: at most one job per this; 0: no best
     refine_max_records: int = 3         # most recent train records it fits
     refine_candidates: int = 150        # last ensemble samples tried by Approach III
+    # Access and input limits (docs/reliability.md).
+    token_for_reads: bool = False       # SIVA_API_TOKEN_READS=1: reads need the token too
+    max_spec_bytes: int = 64 * 1024     # body of PUT /v1/systems/{name}
+    max_spec_depth: int = 8             # nesting of objects/arrays in a spec
+    max_dofs: int = 16
+    max_elements: int = 64
+    max_parameters: int = 32            # free parameters (each costs training time)
+    min_sampling_rate_hz: float = 1.0   # recordings outside this range are refused (422)
+    max_sampling_rate_hz: float = 1.0e6
+    # Supervision.
+    stop_timeout_s: float = 10.0        # DELETE / SIGTERM wait at most this for a trainer
+    stuck_after_s: float = 600.0        # /healthz: a trainer without progress this long is stuck
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -74,14 +109,19 @@ class Settings:
         positive = ("max_upload_bytes", "replay_window", "validation_window",
                     "auto_validation_every", "snapshot_every", "history_limit",
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
-                    "refine_candidates")
+                    "refine_candidates", "drift_baseline_records", "headline_window",
+                    "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
+                    "max_dofs", "max_elements", "max_parameters")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
         for name in ("replay_reservoir", "checkpoint_every_s", "idle_sleep_s", "epoch_pause_s",
-                     "drift_rel_tol", "torch_threads", "refine_every_s"):
+                     "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
+                     "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
+        if not 0 < self.min_sampling_rate_hz < self.max_sampling_rate_hz:
+            raise ValueError("settings min_sampling_rate_hz < max_sampling_rate_hz, both > 0")
         if self.auto_validation_every < 2:
             raise ValueError("setting auto_validation_every must be >= 2 "
                              "(otherwise every record would go to validation)")
@@ -115,6 +155,12 @@ def _convert(raw: str, typ: Any, var: str) -> Any:
                 if not x.is_integer():
                     raise
                 return int(x)
+        if typ == "bool":
+            if raw.lower() in ("1", "true", "yes", "on"):
+                return True
+            if raw.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(raw)
         if typ == "float":
             return float(raw)
         if typ == "Path":

@@ -29,14 +29,18 @@ import uuid
 from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Iterable, Literal
+from typing import Any, Callable, Iterable, Literal
+
+from siva_core import RECORDING_FORMATS as REGISTRY
 
 log = logging.getLogger("siva.service.store")
 
 Role = Literal["train", "validation"]
 ROLES: tuple[str, ...] = ("train", "validation")
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
-FORMATS = ("csv", "json", "npz", "mcap")
+#: system names (also directory names): use ``fullmatch``; ``\Z``, not ``$``, which would
+#: accept a trailing newline ("a\n" and "a" would share a log directory)
+NAME_RE = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9_.-]{0,63}\Z")
+FORMATS = tuple(REGISTRY)  # every registered recording format
 
 
 class StoreError(Exception):
@@ -177,7 +181,7 @@ class Store:
         loaded: list[str] = []
         base = self.root / "systems"
         for d in sorted(p for p in base.iterdir() if p.is_dir()):
-            if d.name.startswith(".") or not NAME_RE.match(d.name):
+            if d.name.startswith(".") or not NAME_RE.fullmatch(d.name):
                 if d.name.startswith(".deleted-"):
                     shutil.rmtree(d, ignore_errors=True)  # an interrupted DELETE
                 continue
@@ -252,7 +256,7 @@ class Store:
 
     def put_spec(self, name: str, spec: dict[str, Any]) -> bool:
         """Store a (validated) spec; True if created, False if the same spec was there."""
-        if not NAME_RE.match(name):
+        if not NAME_RE.fullmatch(name):
             raise ValueError(f"invalid system name {name!r}")
         with self._lock:
             existing = self._systems.get(name)
@@ -262,32 +266,54 @@ class Store:
                 raise SpecConflict(f"system {name!r} already exists with a different spec "
                                    "(DELETE it first, or use another name)")
             d = self.root / "systems" / name
-            _mkdir_durable(d)
-            _mkdir_durable(d / "recordings")
-            atomic_write(d / "spec.json", json.dumps(spec, indent=2, sort_keys=True).encode())
+            try:
+                _mkdir_durable(d)
+                _mkdir_durable(d / "recordings")
+                atomic_write(d / "spec.json", json.dumps(spec, indent=2, sort_keys=True).encode())
+            except OSError:
+                # disk full or read-only: leave no half-created system behind (load() would
+                # skip it anyway: no spec.json means the PUT was never acknowledged)
+                shutil.rmtree(d, ignore_errors=True)
+                raise
             self._systems[name] = _System(name, spec, d, [], threading.Lock())
             return True
 
     def delete_system(self, name: str) -> None:
-        """Remove a system: rename out of the way (atomic), then delete the files."""
+        """Remove a system: rename it to a tombstone (the atomic commit), then delete files.
+
+        The rename comes first and the index changes only once it succeeded, so a DELETE
+        that fails (read-only disk: OSError, a 507) changes nothing, and one that succeeded
+        stays deleted after a crash (``load`` removes the tombstones).
+        """
         with self._lock:
-            s = self._systems.pop(name, None)
-        if s is None:
-            raise UnknownSystem(f"system {name!r} does not exist")
-        with s.lock:
-            trash = s.path.with_name(f".deleted-{name}-{uuid.uuid4().hex[:8]}")
-            os.replace(s.path, trash)
+            s = self._systems.get(name)
+            if s is None:
+                raise UnknownSystem(f"system {name!r} does not exist")
+            with s.lock:
+                trash = s.path.with_name(f".deleted-{name}-{uuid.uuid4().hex[:8]}")
+                os.replace(s.path, trash)
+                self._systems.pop(name, None)
+        try:
             fsync_dir(trash.parent)
-            shutil.rmtree(trash, ignore_errors=True)
+        except OSError as exc:  # the rename is done; at worst a crash now undoes it
+            log.warning("%s: cannot fsync the deletion (%s)", name, exc)
+        shutil.rmtree(trash, ignore_errors=True)
 
     # ------------------------------------------------------------------ recordings
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
-                      filename: str, info: dict[str, Any]) -> tuple[RecordingMeta, bool]:
+                      filename: str, info: dict[str, Any],
+                      before_commit: Callable[[RecordingMeta], None] | None = None
+                      ) -> tuple[RecordingMeta, bool]:
         """Durably store one validated upload; returns (meta, duplicate).
 
         ``role=None`` applies :func:`auto_role`.  The same bytes uploaded again (a client
         retry) return the stored record with ``duplicate=True`` instead of a second copy,
         unless an explicit different role was asked, which is a conflict.
+
+        ``before_commit(meta)`` runs after the raw bytes are durable and before the meta
+        file (the commit point), under the system's lock: the service writes the event log
+        there, so the log is a write-ahead record - every committed recording is logged
+        first.  If it raises, nothing is committed and the exception propagates.
         """
         if fmt not in FORMATS:
             raise ValueError(f"unknown format {fmt!r}")
@@ -315,6 +341,8 @@ class Store:
             raw_path = rdir / _raw_name(rid, fmt)
             atomic_write(raw_path, raw)
             try:
+                if before_commit is not None:
+                    before_commit(meta)
                 atomic_write(rdir / f"{rid}.json", json.dumps(meta.to_dict(), indent=1).encode())
             except BaseException:
                 raw_path.unlink(missing_ok=True)

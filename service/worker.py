@@ -14,106 +14,47 @@ a snapshot every ``snapshot_every`` epochs and checkpointing (atomically, torch.
 record it sleeps.  A trainer exception is logged, shown in the snapshot, and retried after
 a back-off; it never kills the thread.
 
-``best`` (the recommended value of ``Siva.fit``: Approach III over the ensemble, then the
-output-error refinement, ``siva_core._impl.siva.recommend_best``) is computed by a second
-thread per system, the refiner, so that neither training nor reads ever wait for it.  Once
-converged, the trainer thread hands it a job (a copy of the ensemble's last samples, the
-ids of the most recent training records and the processing chain) whenever the data set
-changed since the last job, and otherwise at most every ``refine_every_s`` seconds; the
-refiner re-parses those records from the store and publishes the result into the snapshot.
-A result computed on a data set that has since been replaced is dropped.  The refiner only
-reads copies: the trainer's state and random generators are untouched, so ``siva replay``
-still reproduces the trainer exactly (``best`` itself is not replayed).
+``best`` and monitoring run in a second thread per system (service/refiner.py), so that
+neither training nor reads ever wait for them.  Once converged, the trainer thread hands it
+one job: the first ``best`` (``recommend_best`` on the ensemble).  From then on the refiner
+fits every stored record once, in arrival order (service/monitor.py: one output-error fit
+per record, warm-started from the headline); those fits give the headline estimate
+(``parameters``, ``estimate_source = "best"``) and the drift test (service/detector.py).
+Nothing is refitted on unchanged data.
+
+Idle: once converged, ``idle_after_epochs`` epochs after the last data change the trainer
+pauses (state ``idle``) until a new record arrives; with the refiner also waiting, an idle
+system uses no CPU.
 """
 from __future__ import annotations
 
-import csv
 import logging
-import math
 import threading
 import time
-from dataclasses import asdict, is_dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
-from siva_core._impl.processing import Processing, States
-from siva_core._impl.recording import Recording, RecordingError
-from siva_core._impl.structure import Structure
+from siva_core import Processing, Recording, RecordingError, States, Structure
 
-from .drift import DriftMonitor, DriftRule, modal_quantities
+from .checkpoints import CHECKPOINT_VERSION, checkpoint_state, matches
+from .detector import DetectorSettings
+from .drift import EstimateHistory, modal_quantities
+from .estimate import estimate_parameters, estimate_view, headline, jsonable
+from .monitor import RecordMonitor
+from .refiner import REFINE_LOCK, Refiner
 from .settings import Settings
 from .store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
+from .uploads import parse_upload, processing_for
 
 log = logging.getLogger("siva.service.worker")
 
-#: one refinement at a time in the process (they are CPU-heavy and use numba's threads)
-_REFINE_LOCK = threading.Lock()
 #: ensemble epochs on the current data set needed before a refinement starts from them
 REFINE_MIN_SAMPLES = 10
 
-CHECKPOINT_VERSION = 1
-
-
-# --------------------------------------------------------------------------- helpers
-def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:
-    """The processing chain for these records: ``Processing.auto`` when available."""
-    auto = getattr(Processing, "auto", None)
-    if auto is None or not recordings:
-        return Processing()
-    return auto(list(recordings), list(dofs))
-
-
-def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str) -> dict[str, Any]:
-    """Validate an upload exactly as the worker will use it; returns facts for the meta.
-
-    Raises RecordingError (a 4xx) for anything unusable, including a record the processing
-    chain cannot handle (e.g. too short for its filters), so nothing unusable is stored.
-    """
-    import warnings
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            rec = Recording.read(raw, structure.dofs, name=name, fmt=fmt)
-        except RecordingError:
-            raise
-        except ImportError as exc:
-            raise RecordingError(f"{name}: format {fmt!r} is not supported here ({exc})") from None
-        except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError,
-                csv.Error) as exc:
-            # garbage the reader did not anticipate is still the upload's fault, not a 5xx
-            raise RecordingError(f"{name}: unreadable {fmt} ({type(exc).__name__}: "
-                                 f"{str(exc)[:200]})") from None
-    try:
-        proc = processing_for([rec], structure.dofs)
-        st = proc.apply(rec, structure.dofs)
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-        raise RecordingError(f"{name}: cannot be processed ({exc})") from None
-    if len(st) < 2 or not all(np.isfinite(x).all() for x in (st.q, st.v, st.a, st.f)):
-        raise RecordingError(f"{name}: processing leaves no usable (finite) samples")
-    return {"n_samples": len(rec), "fs": rec.fs, "duration_s": float(rec.time[-1] - rec.time[0]),
-            "columns": ["time", *rec.channels], "warnings": [str(w.message) for w in caught]}
-
-
-def jsonable(x: Any) -> Any:
-    """Plain JSON types; NaN/inf become None (JSON has no NaN, and a 500 is not an option)."""
-    if isinstance(x, Mapping):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    if is_dataclass(x) and not isinstance(x, type):
-        return jsonable(asdict(x))
-    return x
+__all__ = ["SystemWorker", "default_trainer", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
+           # moved to their own modules; re-exported for existing imports
+           "parse_upload", "processing_for", "estimate_view", "estimate_parameters", "jsonable"]
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -139,30 +80,39 @@ class SystemWorker:
         self._factory = trainer_factory or default_trainer
         self.buffer = ReplayBuffer(settings.replay_window, settings.replay_reservoir,
                                    settings.validation_window, f"{settings.seed}:{name}")
-        self.drift = DriftMonitor(structure.free, DriftRule(settings.drift_consecutive,
-                                                            settings.drift_rel_tol,
-                                                            settings.drift_reference_after),
-                                  settings.history_limit)
+        self.history = EstimateHistory(settings.history_limit)
+        self.monitor = RecordMonitor(structure, DetectorSettings(
+            baseline_records=settings.drift_baseline_records,
+            arl0_records=settings.drift_arl0_records,
+            min_rel_scatter=settings.drift_min_rel_scatter),
+            window=settings.headline_window, max_nfev=settings.record_max_nfev,
+            max_records=settings.history_limit)
+        self._monitor_view: dict[str, Any] = {"report": self.monitor.report(limit=0),
+                                              "best": None}
         self._drift_lock = threading.Lock()
+        self._monitor_lock = threading.Lock()  # the monitor changes under it (refiner, reset)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._dirty = threading.Event()
         self._dirty.set()
         self._thread = threading.Thread(target=self._run, name=f"siva-trainer-{name}", daemon=True)
-        # refinement (``best``): a job slot filled by the trainer thread, emptied by the refiner
+        # refinement (``best``): the refiner thread fills it through ``_set_best``
         self._snap_lock = threading.Lock()
-        self._refine_cv = threading.Condition()
-        self._refine_job: dict[str, Any] | None = None
         self._refine_offered: tuple[int, float] | None = None  # (data version, monotonic)
         self._data_version = 0
         self._data_epoch = 0
         self._best: dict[str, Any] | None = None
         self._best_error: str | None = None
-        self._refiner = (threading.Thread(target=self._refine_loop, name=f"siva-refine-{name}",
-                                          daemon=True) if settings.refine_every_s > 0 else None)
+        self._refiner = (Refiner(name, structure, store,
+                                 on_result=self._set_best, on_error=self._set_best_error,
+                                 step=self._monitor_step)
+                         if settings.refine_every_s > 0 else None)
+        self._idle_since_epoch: int | None = None
         self.trainer: Any = None
         self.epoch = 0
         self.checkpoint_epoch: int | None = None
+        self.checkpoint_error: str | None = None  # the last checkpoint write failed (why)
+        self.heartbeat = time.monotonic()          # loop progress, for /healthz "stuck"
         self._recs: dict[str, Recording] = {}
         self._states: dict[str, States] = {}
         self._proc: Processing | None = None
@@ -196,19 +146,20 @@ class SystemWorker:
         """New recordings are in the store: pick them up before the next epoch."""
         self._dirty.set()
         self._wake.set()
+        if self._refiner is not None:
+            self._refiner.poke()
 
     def stop(self, timeout: float = 60.0) -> None:
         """Stop after the current epoch; the thread writes a final checkpoint."""
         self._stop.set()
         self._wake.set()
-        with self._refine_cv:
-            self._refine_cv.notify_all()
         t0 = time.monotonic()
+        if self._refiner is not None:
+            self._refiner.request_stop()
         if self._thread.is_alive():
             self._thread.join(timeout)
-        if self._refiner is not None and self._refiner.is_alive():
-            # a refinement cannot be interrupted; its result is simply dropped (daemon thread)
-            self._refiner.join(max(0.0, min(5.0, timeout - (time.monotonic() - t0))))
+        if self._refiner is not None:
+            self._refiner.stop(min(5.0, timeout - (time.monotonic() - t0)))
 
     @property
     def alive(self) -> bool:
@@ -222,17 +173,26 @@ class SystemWorker:
         return self._drift_report
 
     def reset_drift(self) -> dict[str, Any]:
-        with self._drift_lock:
-            self.drift.reset()
-            self._drift_report = self._report()
+        """Forget baseline and alarms (after a repair): the next records form a new baseline.
+        Waits for a per-record fit in progress, so the reset is never half-applied."""
+        with self._monitor_lock:
+            self.monitor.reset()
+            with self._snap_lock:
+                self._update_monitor_view()
+                self._refresh_snapshot()
         return self._drift_report
 
     def _report(self) -> dict[str, Any]:
-        """The drift report, JSON-safe.  History entries are built from already JSON-safe
-        snapshots and never mutated, so only the rest needs converting (cheap per snapshot)."""
-        report = self.drift.report()
-        history = report.pop("history")
-        return {**jsonable(report), "history": history}
+        """The drift report, JSON-safe: the detector's rule, reference, alarm history and
+        per-record estimates (``records``), the headline, and the published estimates
+        (``history``, already JSON-safe and never mutated)."""
+        view = self._monitor_view
+        snap = getattr(self, "_snapshot", {}) or {}
+        return {**view["report"], "headline": {
+                    "parameters": snap.get("parameters", {}),
+                    "estimate_source": snap.get("estimate_source"),
+                    "estimate": snap.get("estimate"), "modal": snap.get("modal")},
+                "history": self.history.last()}
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
@@ -252,6 +212,7 @@ class SystemWorker:
         failures = 0
         last_ckpt = time.monotonic()
         while not self._stop.is_set():
+            self.heartbeat = time.monotonic()
             if self._dirty.is_set():
                 self._dirty.clear()
                 try:
@@ -295,6 +256,9 @@ class SystemWorker:
                 last_ckpt = time.monotonic()
             if self.trainer.converged and self.settings.epoch_pause_s > 0:
                 self._stop.wait(self.settings.epoch_pause_s)
+            if self._should_idle():
+                self._idle()
+                last_ckpt = time.monotonic()
         if self.trainer is not None and self.trainer.epoch > 0:
             try:
                 if self._thetas:
@@ -303,23 +267,56 @@ class SystemWorker:
             except Exception:  # noqa: BLE001
                 log.exception("%s: final checkpoint failed", self.name)
 
+    def _should_idle(self) -> bool:
+        """Converged, ``idle_after_epochs`` epochs on unchanged data, the first ``best``
+        asked for: more epochs would only re-sample the same posterior."""
+        n = self.settings.idle_after_epochs
+        tr = self.trainer
+        if n <= 0 or tr is None or not tr.converged or self._dirty.is_set():
+            return False
+        if self._idle_since_epoch is None:
+            self._idle_since_epoch = int(tr.epoch)
+        due = int(tr.epoch) - max(self._idle_since_epoch, self._data_epoch) >= n
+        return due and (self._refiner is None or self._refine_offered is not None
+                        or self._best is not None)
+
+    def _idle(self) -> None:
+        """Trainer thread: publish, checkpoint, then sleep until new data (or stop)."""
+        self._state = "idle"
+        if self._thetas:
+            self._publish(observe=True)
+        else:
+            self._publish()
+        self._checkpoint()
+        log.info("%s: idle at epoch %d (converged, data unchanged); resumes on new data",
+                 self.name, self.epoch)
+        while not self._stop.is_set() and not self._dirty.is_set():
+            self.heartbeat = time.monotonic()  # idle is not stuck (for a liveness check)
+            self._wake.wait(10.0)
+            self._wake.clear()
+        self._idle_since_epoch = None
+        self._state = "converged"
+
     def _setup_trainer(self) -> None:
         self.trainer = self._factory(self.structure, self.settings)
         ckpt = self.store.load_checkpoint(self.name)
         if ckpt is not None:
-            if ckpt.get("version") != CHECKPOINT_VERSION or ckpt.get("spec") != self.structure.spec:
+            if not matches(ckpt, self.structure.spec):
                 log.warning("%s: checkpoint does not match this spec/version; starting fresh",
                             self.name)
             else:
                 try:
                     self.trainer.load_state_dict(ckpt["trainer"])
                     with self._drift_lock:
-                        self.drift.load_state_dict(ckpt.get("drift", {}))
+                        self.history.load_state_dict(ckpt.get("drift", {}))
+                        self.monitor.load_state_dict(ckpt.get("monitor", {}))
+                        self._best = ckpt.get("best")
+                        self._update_monitor_view()
                 except Exception:  # noqa: BLE001 - e.g. a trainer of another version
                     log.exception("%s: checkpoint unusable; training starts over", self.name)
                     self.trainer = self._factory(self.structure, self.settings)
                     with self._drift_lock:
-                        self.drift.load_state_dict({})
+                        self.history.load_state_dict({})
                 else:
                     self.epoch = int(self.trainer.epoch)
                     self.checkpoint_epoch = self.epoch
@@ -417,6 +414,10 @@ class SystemWorker:
     def _estimate(self) -> tuple[dict[str, Any], str | None]:
         return estimate_parameters(self.structure, self.trainer)
 
+    def _current_best(self) -> dict[str, Any] | None:
+        """The monitor's headline once it has one, else the first ``best``."""
+        return self._monitor_view.get("best") or self._best
+
     def _publish(self, observe: bool = False) -> None:
         snap = self._base_snapshot()
         tr = self.trainer
@@ -433,25 +434,19 @@ class SystemWorker:
                 log.exception("%s: building the snapshot failed", self.name)
                 params, source, disc = {}, None, {}
                 snap["error"] = f"snapshot failed: {exc}"
-            means = [params[p]["mean"] for p in self.structure.free] if params else None
-            modal = modal_quantities(self.structure, means) if means else None
-            # the modal quantities of the last epochs: they follow a change at once, while
-            # the running ensemble's means lag by up to its length
             modal_recent = (modal_quantities(self.structure, [recent[p] for p in self.structure.free])
                             if recent else None)
             snap.update({
                 "epoch": int(tr.epoch),
                 "converged": bool(tr.converged),
                 "converged_at": getattr(getattr(tr, "monitor", None), "converged_at", None),
-                "parameters": params,
-                "estimate_source": source,
                 "recent": recent,
                 "fixed": {p: i.fixed for p, i in self.structure.parameters.items()
                           if i.fixed is not None and not p.startswith("_fixed_")},
                 "discriminator": disc,
-                "modal": modal,
                 "modal_recent": modal_recent,
             })
+            snap.update({"ensemble": params, "ensemble_source": source})
             if self._last_log is not None:
                 snap["losses"] = {"loss_d": self._last_log.loss_d,
                                   "loss_adv": self._last_log.loss_adv,
@@ -467,33 +462,42 @@ class SystemWorker:
         if self._epoch_times:
             snap["seconds_per_epoch"] = float(np.mean(self._epoch_times))
         snap = jsonable(snap)
-        snap["best"] = self._best
-        if self._best_error:
-            snap["best_error"] = self._best_error
-        with self._drift_lock:
-            if observe and tr is not None and recent:
-                raised = self.drift.observe({
-                    "epoch": snap["epoch"], "time": snap["time"], "converged": snap["converged"],
-                    "recent": snap["recent"],
-                    "parameters": {p: {k: s.get(k) for k in ("mean", "std", "ci95")}
-                                   for p, s in snap["parameters"].items()},
-                    "modal": snap.get("modal_recent"), "modal_estimate": snap.get("modal"),
-                    "n_train": len(self._train_ids),
-                    "n_validation": len(self._val_ids)})
-                for a in raised:
-                    log.warning("%s: drift alarm: %s", self.name, a["message"])
-            report = self._report()
-        snap["alarms"] = [a for a in report["alarms"] if a["active"]]
-        self._drift_report = report
         with self._snap_lock:
             # the refiner may have published a newer ``best`` while this one was built
-            snap["best"] = self._best
+            if tr is not None:
+                snap.update(jsonable(self._headline_keys(snap.get("ensemble", {}),
+                                                         snap.get("ensemble_source"))))
+            if self._best_error:
+                snap["best_error"] = self._best_error
+            snap["alarms"] = [a for a in self._monitor_view["report"]["alarms"] if a["active"]]
             self._snapshot = snap
+            with self._drift_lock:
+                if observe and tr is not None:
+                    self.history.add({
+                        "epoch": snap["epoch"], "time": snap["time"],
+                        "converged": snap["converged"], "recent": snap.get("recent") or {},
+                        "parameters": {p: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                                       for p, v in snap.get("parameters", {}).items()},
+                        "estimate_source": snap.get("estimate_source"),
+                        "ensemble": {p: v.get("mean") for p, v in
+                                     snap.get("ensemble", {}).items()},
+                        "modal": snap.get("modal"), "modal_recent": snap.get("modal_recent")})
+                self._drift_report = self._report()
         if self.events is not None and observe:
             try:
                 self.events.log_snapshot(self.name, estimate_view(snap, self._counts()))
             except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
                 log.exception("%s: event log failed", self.name)
+
+    def _headline_keys(self, ensemble: dict[str, Any], source: str | None) -> dict[str, Any]:
+        keys = headline(self.structure, ensemble, source, self._current_best())
+        means = [keys["parameters"].get(p, {}).get("mean") for p in self.structure.free]
+        keys["modal"] = (modal_quantities(self.structure, means)
+                         if means and all(m is not None for m in means) else None)
+        keys["best"] = self._current_best()
+        keys["monitoring"] = self._monitor_view.get("summary")
+        keys["alarm_history"] = self._monitor_view["report"]["alarm_history"]
+        return keys
 
     # ------------------------------------------------------------------ refinement (best)
     def _offer_refinement(self) -> None:
@@ -503,88 +507,105 @@ class SystemWorker:
             return
         now = time.monotonic()
         last = self._refine_offered
-        if (last is not None and last[0] == self._data_version
-                and now - last[1] < self.settings.refine_every_s):
-            return
+        if self._best is not None or self.monitor.ready:
+            return  # from now on the per-record fits carry the headline
+        if last is not None and (last[0] == self._data_version
+                                 or now - last[1] < self.settings.refine_every_s):
+            return  # one job per data set, at most every refine_every_s
         ens = getattr(tr, "ensemble", None)
         if ens is None or len(ens) == 0:
             return
         samples = np.array(ens.samples, dtype=float, copy=True)
         epochs = np.asarray(getattr(ens, "epochs", np.full(len(samples), tr.epoch)))
-        samples = samples[epochs >= self._data_epoch]  # harvested on the current data set
-        if len(samples) < min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES):
-            return  # just after a data change: wait for samples of the new data set
+        need = min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES)
+        current = samples[epochs >= self._data_epoch]  # harvested on the current data set
+        # prefer candidates of the current data set; while records stream (a new data set
+        # every few epochs) the older ones will do: Approach III picks among them on the
+        # current records, and the refinement and per-record fits take it from there
+        samples = current if len(current) >= need else samples
+        if len(samples) < need:
+            return
         job = {"version": self._data_version, "epoch": int(tr.epoch),
                "candidates": samples[-self.settings.refine_candidates:],
                "train": list(self._train_ids[-self.settings.refine_max_records:]),
                "processing": self._proc}
         self._refine_offered = (self._data_version, now)
-        with self._refine_cv:
-            self._refine_job = job  # a job not yet started is superseded by this one
-            self._refine_cv.notify_all()
+        self._refiner.submit(job)
 
-    def _refine_loop(self) -> None:
-        while not self._stop.is_set():
-            with self._refine_cv:
-                while self._refine_job is None and not self._stop.is_set():
-                    self._refine_cv.wait(1.0)
-                job, self._refine_job = self._refine_job, None
-            if job is None or self._stop.is_set():
-                continue
-            try:
-                best = self._refine(job)
-            except Exception as exc:  # noqa: BLE001 - never kills the thread or the service
-                log.exception("%s: refinement failed", self.name)
-                self._best_error = f"refinement failed: {type(exc).__name__}: {exc}"
-                continue
-            if best is None:
-                continue
-            with self._snap_lock:
-                if job["version"] != self._data_version:  # a newer data set supersedes it
-                    log.info("%s: refinement of data set %d superseded; result dropped",
-                             self.name, job["version"])
-                    continue
-                self._best = best
-                self._best_error = None
-                snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
-                snap["best"] = best
-                self._snapshot = snap
+    def _set_best(self, best: dict[str, Any], job: dict[str, Any]) -> None:
+        """Refiner thread: publish the first ``best`` and seed the monitor with it.  Kept
+        even when records arrived meanwhile (while records stream they always do): it only
+        starts the per-record fits, which then follow every record."""
+        with self._snap_lock:
+            self._best = {**best, "source": "recommend_best",
+                          "method": "Approach III over the ensemble, then output-error "
+                                    "refinement on the most recent training records"}
+            self._best_error = None
+            if not self.monitor.ready:
+                theta = [best["parameters"][p]["value"] for p in self.structure.free]
+                proc = job["processing"] if job["processing"] is not None else Processing()
+                with self._monitor_lock:
+                    self.monitor.seed(theta, proc)
+            self._refresh_snapshot()
 
-    def _refine(self, job: dict[str, Any]) -> dict[str, Any] | None:
-        """Refiner thread: ``recommend_best`` on the job's records, re-parsed from the store.
-        None when the data set changed meanwhile (a newer job follows) or the service stops."""
-        from siva_core._impl.siva import recommend_best
+    def _refresh_snapshot(self) -> None:
+        """Refiner thread (under ``_snap_lock``): the headline keys of the current snapshot
+        follow a new ``best`` at once, even while the trainer is idle."""
+        snap = {k: v for k, v in self._snapshot.items() if k != "best_error"}
+        if snap.get("epoch"):
+            snap.update(jsonable(self._headline_keys(snap.get("ensemble", {}),
+                                                     snap.get("ensemble_source"))))
+        snap["alarms"] = [a for a in self._monitor_view["report"]["alarms"] if a["active"]]
+        self._snapshot = snap
+        with self._drift_lock:
+            self._drift_report = self._report()
 
-        t0 = time.perf_counter()
-        by_id = {m.id: m for m in self.store.recordings(self.name)}
-        recs = []
-        for rid in job["train"]:
-            meta = by_id.get(rid)
-            if meta is None:
-                return None  # deleted meanwhile
+    # ------------------------------------------------------------------ monitoring
+    def _monitor_step(self) -> bool:
+        """Refiner thread: fit the oldest stored record not yet monitored; False when
+        there is none (or no ``best`` to start from yet)."""
+        if not self.monitor.ready or self._stop.is_set():
+            return False
+        try:
+            metas = self.store.recordings(self.name)
+        except UnknownSystem:
+            return False
+        pending = [m for m in metas if m.index > self.monitor.processed_index]
+        if not pending:
+            return False
+        meta = min(pending, key=lambda m: m.index)
+        try:
             raw = self.store.read_raw(self.name, meta)
-            recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt))
-        proc = job["processing"] if job["processing"] is not None else Processing()
-        with _REFINE_LOCK:
-            if self._stop.is_set() or job["version"] != self._data_version:
-                return None
-            rec = recommend_best(self.structure, job["candidates"], recs, proc)
-        params: dict[str, Any] = {}
-        for k, p in enumerate(self.structure.free):
-            v = float(rec.theta[k])
-            s = None if rec.std is None else float(rec.std[k])
-            params[p] = {"value": v, "std": s,
-                         "ci95": None if s is None else [v - 1.96 * s, v + 1.96 * s]}
-        seconds = time.perf_counter() - t0
-        log.info("%s: best from %d candidates on %d record(s) in %.1f s (refined=%s, "
-                 "output error %.3g)", self.name, len(job["candidates"]), len(recs), seconds,
-                 rec.refined, rec.output_error if rec.output_error is not None else float("nan"))
-        return jsonable({
-            "parameters": params, "epoch": job["epoch"], "n_records": len(recs),
-            "time": time.time(), "output_error": rec.output_error,
-            "refined": rec.refined, "records": job["train"], "n_candidates": len(job["candidates"]),
-            "approach_III": self.structure.as_dict(rec.theta_III), "note": rec.note,
-            "seconds": seconds})
+            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt)
+        except (OSError, RecordingError) as exc:
+            self.monitor.processed_index = meta.index
+            self.monitor.failures[meta.id] = str(exc)
+            return True
+        with REFINE_LOCK, self._monitor_lock:
+            if self._stop.is_set():
+                return False
+            changes = self.monitor.process(meta.id, meta.index, rec,
+                                           getattr(meta, "received_at", None))
+        for a in changes:
+            a.setdefault(f"epoch_{a['state']}", self.epoch)
+            a.setdefault("epoch", self.epoch)
+            log.warning("%s: drift alarm %s: %s", self.name, a["state"], a["message"])
+        with self._snap_lock:
+            self._update_monitor_view()
+            self._refresh_snapshot()
+        if changes and self.events is not None:
+            try:
+                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+            except Exception:  # noqa: BLE001
+                log.exception("%s: event log failed", self.name)
+        return True
+
+    def _update_monitor_view(self) -> None:
+        """Immutable, JSON-safe copies of what the monitor holds, for readers."""
+        self._monitor_view = jsonable(self.monitor.view(self.epoch, self.settings.history_limit))
+
+    def _set_best_error(self, message: str) -> None:
+        self._best_error = message
 
     def _counts(self) -> dict[str, int]:
         try:
@@ -595,54 +616,27 @@ class SystemWorker:
     def _checkpoint(self) -> None:
         if self.trainer is None:
             return
-        state = {"version": CHECKPOINT_VERSION, "spec": self.structure.spec,
-                 "trainer": self.trainer.state_dict(),
-                 "drift": self.drift.state_dict(),
-                 "data": {"train": list(self._train_ids), "validation": list(self._val_ids)},
-                 "time": time.time()}
+        with self._monitor_lock:  # a consistent monitor (no fit half-applied)
+            extra = {"monitor": self.monitor.state_dict(), "best": self._best}
+        state = checkpoint_state(self.structure.spec, self.trainer, self.history,
+                                 self._train_ids, self._val_ids, extra)
         try:
             self.store.save_checkpoint(self.name, state)
         except UnknownSystem:
             return
+        except Exception as exc:  # noqa: BLE001 - disk full/read-only: train on, retry later
+            log.error("%s: checkpoint failed: %s", self.name, exc)
+            self.checkpoint_error = f"{type(exc).__name__}: {exc}"
+            return
+        self.checkpoint_error = None
         self.checkpoint_epoch = int(self.trainer.epoch)
-
-
-def estimate_view(snapshot: Mapping[str, Any], counts: Mapping[str, int]) -> dict[str, Any]:
-    """The GET .../estimate body: the contract's keys first, then everything else."""
-    out = {"parameters": {p: {"mean": s.get("mean"), "std": s.get("std"), "ci95": s.get("ci95"),
-                              **{k: v for k, v in s.items() if k not in ("mean", "std", "ci95")}}
-                          for p, s in snapshot.get("parameters", {}).items()},
-           "discriminator": snapshot.get("discriminator", {}),
-           "epoch": snapshot.get("epoch", 0),
-           "converged": snapshot.get("converged", False),
-           "n_recordings": {"train": int(counts.get("train", 0)),
-                            "validation": int(counts.get("validation", 0))}}
-    for k, v in snapshot.items():
-        if k not in out:
-            out[k] = v
-    return out
 
 
 def default_trainer(structure: Structure, settings: Settings) -> Any:
     """The lead's SivaTrainer with the preset and seed of the settings."""
-    from siva_core._impl.training import SivaSettings, SivaTrainer
+    from siva_core import SivaSettings, SivaTrainer
 
     preset = getattr(SivaSettings, settings.preset, None)
     if preset is None:
         raise ValueError(f"unknown SIVA preset {settings.preset!r} (fast, paper)")
     return SivaTrainer(structure, preset(seed=settings.seed))
-
-
-def estimate_parameters(structure: Structure, tr: Any) -> tuple[dict[str, Any], str | None]:
-    """Parameters {mean, std, ci95, ess, n}: the Approach II ensemble once converged,
-    before that the spread of the generator's output (Approach I sampling).  Shared by the
-    live worker and ``siva replay`` so both read out the same way."""
-    free = structure.free
-    summary = tr.ensemble.summary(free) if len(tr.ensemble) >= 2 else {}
-    if summary:
-        return summary, "approach_II"
-    if tr.epoch == 0 or not getattr(tr, "initialised", True):
-        return {}, None
-    from siva_core._impl.ensemble import normal_summary
-
-    return normal_summary(tr.sample(256), free, ess=False), "generator"

@@ -1,19 +1,123 @@
 """siva_core: structural system identification via validation and adaptation (SIVA).
 
-Public surface (the rest lives under ``_impl``):
+The public API; everything else lives under ``_impl`` and may change.  Names are loaded
+on first use (module ``__getattr__``), so ``import siva_core`` (and ``siva --help``) does
+not pay for torch, scipy or numba until something needs them.
 
-- :class:`Structure` - a model from a spec (masses + elements), batched accelerations.
-- :class:`Recording` - a validated measured record (CSV / JSON / NPZ / MCAP).
-- :class:`Processing` - the configurable processing chain -> :class:`States`.
-- :class:`Siva` - the estimator (``fit`` returns self; results in ``result_``).
+Model and data
+    :class:`Structure` (a model from a spec), :class:`SpecError`, :class:`ElementKind`,
+    :func:`register_element`, :data:`ELEMENT_KINDS` (the registry);
+    :class:`Recording` (CSV / JSON / NPZ / MCAP / LVM / UFF58 / TDMS / MAT),
+    :class:`RecordingError`, :class:`RecordingTooLarge`, :func:`register_format`,
+    :func:`sniff_format`, :func:`read_mcap_recording`, :func:`write_mcap_recording`,
+    :func:`mcap_bytes`.
+Processing
+    :class:`Processing` (the chain) -> :class:`States`; :func:`simulated_recording`,
+    :func:`central_difference`; :func:`detect_impulse` / :class:`Impulse` (the one rule
+    deciding whether a force is a hammer pulse).
+Simulation
+    :func:`simulate` -> :class:`Simulation`, :func:`auto_substeps`, :func:`stage_force`,
+    :func:`warmup`; :func:`initial_state_and_force` and :func:`gate_force` (what drives
+    the simulation of a measured record).
+Identification
+    :class:`Siva` (``fit`` returns self; results in ``result_``: :class:`Identification`),
+    :class:`SivaSettings`, :class:`SivaTrainer`, :func:`choose_processing`,
+    :func:`recommend_best`, :func:`validation_score` (held-out records: does the model
+    explain them up to noise?); :class:`Ensemble`, :func:`normal_summary`,
+    :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
+    output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
+    :func:`displacement_mse`, :class:`OutputErrorProblem`;
+    baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
+Diagnosis
+    :func:`diagnose` -> :class:`Diagnosis`, :class:`DiagnoseSettings`,
+    :func:`synthetic_impacts`, :func:`with_effect`, :func:`html_report`;
+    :class:`Effect`, :data:`EFFECTS`, :func:`register_effect`.
+Reports
+    :func:`write_report`; spectra: :func:`fourier_amplitude`, :func:`frequency_band`,
+    :func:`cwt`, :func:`dominant_frequency`.
 """
-from ._impl.elements import ElementKind, register_element
-from ._impl.processing import Processing, States
-from ._impl.recording import Recording, RecordingError
-from ._impl.siva import Identification, Siva
-from ._impl.structure import SpecError, Structure
-from ._impl.training import SivaSettings, SivaTrainer
+from __future__ import annotations
 
-__all__ = ["Structure", "Recording", "Processing", "States", "ElementKind",
-           "register_element", "SpecError", "RecordingError", "Siva", "SivaSettings",
-           "SivaTrainer", "Identification"]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+#: public name -> (module under siva_core._impl, attribute there)
+_EXPORTS: dict[str, tuple[str, str]] = {}
+
+
+def _export(module: str, *names: str, **renamed: str) -> None:
+    for name in names:
+        _EXPORTS[name] = (module, name)
+    for public, private in renamed.items():
+        _EXPORTS[public] = (module, private)
+
+
+_export("structure", "Structure", "SpecError")
+_export("elements", "ElementKind", "register_element", ELEMENT_KINDS="REGISTRY")
+_export("recording", "Recording", "RecordingError")
+_export("formats", "RecordingTooLarge", "register_format", "sniff_format", "resolve_format",
+        "media_types", "MCAP_MAGIC", "ReadLimits", RECORDING_FORMATS="REGISTRY")
+_export("progress", "Eta", "EpochProgress")
+_export("mcap_recording", "read_mcap_recording", "write_mcap_recording", "mcap_bytes")
+_export("processing", "Processing", "States", "simulated_recording", "central_difference")
+_export("impulse", "detect_impulse", "Impulse")
+_export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup")
+_export("excitation", "initial_state_and_force", "gate_force")
+_export("siva", "Siva", "Identification", "choose_processing", "recommend_best")
+_export("training", "SivaSettings", "SivaTrainer")
+_export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
+_export("convergence", "ConvergenceMonitor")
+_export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
+        "OutputErrorProblem")
+_export("baselines", "least_squares", "sindy", "FitResult")
+_export("validation", "validation_score")
+_export("diagnose", "diagnose", "Diagnosis", "DiagnoseSettings", "synthetic_impacts",
+        "with_effect", "html_report")
+_export("effects", "Effect", "EFFECTS", "register_effect")
+_export("report", "write_report")
+_export("spectra", "fourier_amplitude", "frequency_band", "cwt", "dominant_frequency")
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module, attr = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'siva_core' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(f"{__name__}._impl.{module}"), attr)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check the lists match)
+    from ._impl.baselines import FitResult, least_squares, sindy
+    from ._impl.convergence import ConvergenceMonitor
+    from ._impl.diagnose import (DiagnoseSettings, Diagnosis, diagnose, html_report,
+                                 synthetic_impacts, with_effect)
+    from ._impl.effects import EFFECTS, Effect, register_effect
+    from ._impl.elements import REGISTRY as ELEMENT_KINDS
+    from ._impl.elements import ElementKind, register_element
+    from ._impl.ensemble import Ensemble, effective_sample_size, normal_summary
+    from ._impl.excitation import gate_force, initial_state_and_force
+    from ._impl.impulse import Impulse, detect_impulse
+    from ._impl.mcap_recording import mcap_bytes, read_mcap_recording, write_mcap_recording
+    from ._impl.processing import Processing, States, central_difference, simulated_recording
+    from ._impl.recording import Recording, RecordingError
+    from ._impl.formats import REGISTRY as RECORDING_FORMATS
+    from ._impl.formats import (MCAP_MAGIC, ReadLimits, RecordingTooLarge, media_types,
+                                register_format, resolve_format, sniff_format)
+    from ._impl.progress import EpochProgress, Eta
+    from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
+                               output_error, refine)
+    from ._impl.report import write_report
+    from ._impl.simulate import Simulation, auto_substeps, simulate, stage_force, warmup
+    from ._impl.siva import Identification, Siva, choose_processing, recommend_best
+    from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
+    from ._impl.structure import SpecError, Structure
+    from ._impl.training import SivaSettings, SivaTrainer
+    from ._impl.validation import validation_score

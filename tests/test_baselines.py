@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from siva_core import Processing, Recording, States, Structure
-from siva_core._impl.baselines import FitResult, least_squares, sindy
+from siva_core import FitResult, least_squares, sindy
 
 
 def _states(q, v, a, f, name="synthetic") -> States:

@@ -24,10 +24,8 @@ from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, _am
                                       decide, diagnose, html_report, synthetic_impacts,
                                       with_effect)
 from siva_core._impl.diagnose.model_spec import write_model
-from siva_core._impl.effects import EFFECTS, Effect, register_effect
-from siva_core._impl.elements import REGISTRY
-from siva_core._impl.structure import Structure
-from siva_core._impl.recording import Recording
+from siva_core import ELEMENT_KINDS as REGISTRY
+from siva_core import EFFECTS, Effect, Recording, Structure, register_effect
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")

@@ -16,11 +16,8 @@ from siva_core._impl.diagnose.sensors import (ACC_GAIN, CHANNEL_DELAY, corrected
                                               sensor_candidates)
 from siva_core._impl.diagnose.signatures import amplitude_signatures
 from siva_core._impl.diagnose.units import UNITS, with_unit
-from siva_core._impl.effects import EFFECTS
-from siva_core._impl.elements import REGISTRY
-from siva_core._impl.processing import Processing
-from siva_core._impl.recording import Recording
-from siva_core._impl.structure import Structure
+from siva_core import EFFECTS, Processing, Recording, Structure
+from siva_core import ELEMENT_KINDS as REGISTRY
 
 ROOT = Path(__file__).resolve().parents[1]
 LONO = ROOT / "examples" / "models" / "lono.toml"

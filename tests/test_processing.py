@@ -9,9 +9,8 @@ import warnings
 import numpy as np
 import pytest
 
-from siva_core import Processing, Recording, States, Structure
-from siva_core._impl.baselines import least_squares
-from siva_core._impl.processing import central_difference, simulated_recording
+from siva_core import (Processing, Recording, States, Structure, central_difference,
+                       least_squares, simulated_recording)
 
 
 def only(rec: Recording, *quantities: str) -> Recording:

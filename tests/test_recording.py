@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from siva_core import Recording, RecordingError
-from siva_core._impl.mcap_recording import (TOPIC, mcap_bytes, read_mcap_recording,
-                                            write_mcap_recording)
+from siva_core import (Recording, RecordingError, mcap_bytes, read_mcap_recording,
+                       write_mcap_recording)
+from siva_core._impl.mcap_recording import TOPIC  # the format's private constant
 
 DOFS = ["x"]
 

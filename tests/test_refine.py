@@ -9,10 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from siva_core import Processing, Recording, Structure
-from siva_core._impl import refine as refine_mod
-from siva_core._impl.refine import (OutputErrorProblem, displacement_mse, output_error, refine)
-from siva_core._impl.simulate import simulate
+from siva_core import (OutputErrorProblem, Processing, Recording, Structure, displacement_mse,
+                       output_error, refine, simulate, simulated_recording)
+from siva_core._impl import refine as refine_mod  # monkeypatched: private behaviour
 
 DUFFING_TRUTH = np.array([0.5, 4000.0, 300.0, 3e8])
 
@@ -120,8 +119,6 @@ def test_batched_chain_equals_per_set_chain(lono_model: Structure, lono_truth: n
                                             impact_530: Recording) -> None:
     """The residuals run the chain once on (B, T, n) arrays; that must be exactly the chain
     run on each simulated record on its own (what other modules do per set)."""
-    from siva_core._impl.simulate import simulated_recording
-
     proc = Processing.paper()
     prob = OutputErrorProblem.build(lono_model, impact_530, proc, theta_ref=lono_truth)
     thetas = np.stack([lono_truth, lono_truth * 1.05])

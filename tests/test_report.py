@@ -9,8 +9,7 @@ import pytest
 
 from siva_core import Recording, Siva, Structure
 from synthetic import SDOF, TRUE, free_decay
-from siva_core._impl.report import write_report
-from siva_core._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
+from siva_core import cwt, dominant_frequency, fourier_amplitude, frequency_band, write_report
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
@@ -156,3 +155,54 @@ def test_cwt_default_band_covers_the_signal_and_rejects_bad_input():
         cwt(np.zeros((10, 2)), fs)
     with pytest.raises(ValueError):
         cwt(x, fs, np.array([10.0, fs]))  # above Nyquist
+
+
+def test_frequency_band_includes_a_weak_higher_mode_when_asked():
+    """The 37 N LO-NO case: a displacement's energy is in its low mode, so the energy
+    criterion alone cuts a weak 19.8 Hz mode off the axis; ``include`` keeps it on."""
+    fs = 2048.0
+    t = np.arange(8192) / fs
+    x = np.exp(-0.3 * t) * np.sin(2 * np.pi * 5.7 * t) + 0.002 * np.exp(-0.5 * t) * np.sin(2 * np.pi * 19.8 * t)
+    _, hi = frequency_band(x, fs)
+    assert hi < 19.8  # the failure this guards against
+    _, hi2 = frequency_band(x, fs, include=[5.7, 19.8])
+    assert hi2 >= 1.25 * 19.8 and hi2 <= fs / 2
+
+
+def test_parameter_units_come_from_the_element_kinds():
+    lono = Structure.from_file(Path(__file__).resolve().parents[1] / "examples/models/lono.toml")
+    assert lono.parameter_units() == {"b1": "N/(m/s)", "k1": "N/m", "b2": "N/(m/s)", "k2": "N/m",
+                                      "alpha": "N/m^(1+beta)", "beta": "-"}
+
+
+def test_parameters_figure_keeps_best_on_the_axis(fitted):
+    """best (and its 95 % interval) far outside what the epochs visited is still drawn
+    inside the axis (alpha and beta of LO-NO fell off it)."""
+    from siva_core._impl.report import _fig_parameters
+
+    est, _, _ = fitted
+    res = est.result_
+    names = list(res.names)
+    far = np.array(res.best, dtype=float) * 3.0
+
+    class _Res:
+        history = res.history
+        converged_epoch = res.converged_epoch
+        best = far
+        best_std = np.abs(far) * 0.01
+
+    fig = _fig_parameters(_Res, names, None, None, est.structure.parameter_units())
+    for k, ax in enumerate(fig.axes[:len(names)]):
+        lo, hi = ax.get_ylim()
+        assert lo <= far[k] * 0.98 and far[k] * 1.02 <= hi, (names[k], (lo, hi), far[k])
+        assert "[" in ax.get_title()  # the unit
+
+
+def test_report_table_says_which_value_to_use_with_units(fitted):
+    from siva_core._impl.report import _html
+
+    est, _, _ = fitted
+    page = _html(est, est.result_, list(est.result_.names), None, [], [], None)
+    assert "Use <code>best</code>" in page
+    assert "N/m" in page and "N/(m/s)" in page
+    assert not re.search(r"(\d\S*) \[\1, \1\]", page)  # no "0.5 [0.5, 0.5]"

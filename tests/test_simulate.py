@@ -10,10 +10,10 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicSpline
 
-from siva_core import ElementKind, Recording, Structure, register_element
-from siva_core._impl.elements import REGISTRY
-from siva_core._impl.simulate import (auto_substeps, compiled_kernel, gate_force, impulse_window,
-                                      simulate, simulate_like, stage_force)
+from siva_core import (ELEMENT_KINDS as REGISTRY, ElementKind, Processing, Recording, Structure,
+                       auto_substeps, detect_impulse, gate_force, initial_state_and_force,
+                       Simulation, register_element, simulate, stage_force)
+from siva_core._impl.simulate import compiled_kernel  # the kernel cache is private behaviour
 
 DUFFING_TRUTH = np.array([0.5, 4000.0, 300.0, 3e8])  # b, b_nl, k, k_nl (paper eq. 5)
 
@@ -43,6 +43,13 @@ def reference(structure: Structure, theta: np.ndarray, t: np.ndarray, q0, v0,
         out[sel] = sol.y[:n].T
         y = sol.y[:, -1]
     return out
+
+
+def simulate_record(structure: Structure, theta: np.ndarray, rec: Recording,
+                    processing: Processing | None = None, **kw) -> Simulation:
+    """Simulate what ``rec`` recorded, from the initial state and force the chain implies."""
+    q0, v0, force = initial_state_and_force(structure, rec, processing or Processing())
+    return simulate(structure, theta, rec.time, q0, v0, force, **kw)
 
 
 def rel_err(x: np.ndarray, ref: np.ndarray) -> float:
@@ -83,7 +90,7 @@ def test_duffing_truth_reproduces_train_v5(duffing_model: Structure, shared_data
     assert duffing_model.mass["x"] == truth["mass"]["x"]
     theta = duffing_model.vector(truth["truth"])
     rec = Recording.read(shared_data / "duffing" / "train_v5.csv", duffing_model.dofs)
-    sim = simulate_like(duffing_model, theta, rec, substeps="auto")
+    sim = simulate_record(duffing_model, theta, rec, substeps="auto")
     x = rec.channels["disp_x"]
     assert rel_err(sim.q[:, 0], x) < 1e-6
     assert rel_err(sim.v[:, 0], rec.channels["vel_x"]) < 1e-6
@@ -233,18 +240,16 @@ def test_stage_force_interpolation() -> None:
 def test_impulse_gating_and_rest_start(lono_model: Structure, shared_data: Path) -> None:
     rec = Recording.read(shared_data / "lono" / "impact_530N.csv", lono_model.dofs)
     F = rec.stack("force", lono_model.dofs, fill=0.0)
-    lo, hi = impulse_window(F)
+    lo, hi = detect_impulse(F).window(margin=2)
     assert 0.095 < rec.time[lo] < 0.1 < 0.1062 < rec.time[hi] < 0.112
     g = gate_force(F)
     assert np.all(g[:lo] == 0) and np.all(g[hi:] == 0)
     np.testing.assert_array_equal(g[lo:hi], F[lo:hi])
     multisine = np.sin(np.arange(1000) * 0.3)[:, None]
-    assert impulse_window(multisine) is None
+    assert detect_impulse(multisine) is None
     np.testing.assert_array_equal(gate_force(multisine), multisine)
     # a pre-triggered impact starts at rest, whatever the band-pass smears into row 0
-    from siva_core import Processing
-
-    sim = simulate_like(lono_model, lono_model.vector(json.loads(
+    sim = simulate_record(lono_model, lono_model.vector(json.loads(
         (shared_data / "lono" / "truth.json").read_text())["truth"]), rec, Processing.paper(),
         substeps=3)
     assert np.all(sim.q[:lo] == 0.0)

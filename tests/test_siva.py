@@ -72,14 +72,25 @@ def test_lono_as_measured_best_within_tolerance():
         assert out[p]["best"] == pytest.approx(exact, rel=tol), (p, out[p]["best"], exact)
         lo, hi = out[p]["best_ci95"]
         assert lo < exact < hi, (p, lo, exact, hi)  # measured: the truth lies inside every CI
-    # SIVA's own approaches carry the processing chain's bias; best must beat them on validation
-    val = est.result_.metrics["validation"]
-    assert val["best"]["output_error"] < min(val[a]["output_error"] for a in
-                                             ("approach_I", "approach_II", "approach_III"))
+    # SIVA itself (the output-error phase) is unbiased too, with intervals that cover
+    covered = 0
+    for p, exact in truth.items():
+        tol = 0.10 if p in ("b1", "b2") else 0.03
+        assert out[p]["approach_II"]["mean"] == pytest.approx(exact, rel=tol), (p, out[p])
+        lo, hi = out[p]["approach_II"]["ci95"]
+        covered += lo < exact < hi
+    assert covered >= 5, {p: out[p]["approach_II"] for p in truth}
+    # the equation-error ensemble it started from stays visible under its own key
+    assert set(out["alpha"]["approach_II_equation_error"]) >= {"mean", "std", "ci95"}
+    # the held-out test accepts the right model for both estimates, on both records
+    val = est.result_.metrics["validation_test"]
+    for key in ("approach_II", "best"):
+        assert val[key]["accepted"] and val[key]["statistic"] < 1.5, val[key]
+        assert set(val[key]["records"]) == {"impact_37N.csv", "impact_899N.csv"}
 
 
 def _siva(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "siva_core.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "siva_cli", *args], capture_output=True,
                           text=True, cwd=ROOT, timeout=600, **kw)
 
 

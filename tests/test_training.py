@@ -9,8 +9,7 @@ import torch
 
 from siva_core import Processing, Recording, SivaSettings, SivaTrainer, States, Structure
 from synthetic import SDOF, TRUE, free_decay
-from siva_core._impl.convergence import ConvergenceMonitor
-from siva_core._impl.ensemble import Ensemble, effective_sample_size, normal_summary
+from siva_core import ConvergenceMonitor, Ensemble, effective_sample_size, normal_summary
 from siva_core._impl.networks import LN4, Discriminator, ParameterGenerator
 
 ROOT = Path(__file__).resolve().parents[1]

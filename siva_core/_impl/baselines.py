@@ -102,7 +102,7 @@ class _Design:
                 if p in self.linear and c in el.kind.linear:
                     self._terms.append(_Term(p, tuple(sites), self._element_basis(el, c)))
         for k, d in enumerate(structure.dofs):
-            gain = structure.force_gains.get(d, 1.0)
+            gain = structure.force_gain(d)
             if isinstance(gain, str) and gain in self.linear:
                 # +g F on DOF k: a "force" pushing k by -(-F), hence sign -1 with basis F
                 self._terms.append(_Term(gain, ((k, -1.0),),
@@ -148,7 +148,7 @@ class _Design:
             if el.j >= 0:
                 acc[:, el.j] += fe
         for k, d in enumerate(s.dofs):
-            gain = s.force_gains.get(d, 1.0)
+            gain = s.force_gain(d)
             if isinstance(gain, str):
                 if gain in self.linear:
                     continue

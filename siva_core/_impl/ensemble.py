@@ -33,14 +33,17 @@ def effective_sample_size(x: np.ndarray) -> float:
     return float(min(n, n / tau))
 
 
-def normal_summary(samples: np.ndarray, names: Sequence[str], *, ess: bool = True) -> dict[str, dict]:
-    """Normal fit per parameter: mean, std, 95 % interval mean +- 1.96 std, percentiles, ESS."""
+def normal_summary(samples: np.ndarray, names: Sequence[str], *, ess: bool = True,
+                   floor_rel: float = 0.0) -> dict[str, dict]:
+    """Normal fit per parameter: mean, std, 95 % interval mean +- 1.96 std, percentiles, ESS.
+    ``floor_rel``: the std is at least this fraction of |mean| (a numerical-accuracy floor)."""
     samples = np.atleast_2d(np.asarray(samples, dtype=float))
     out: dict[str, dict] = {}
     for k, name in enumerate(names):
         col = samples[:, k]
         mean = float(col.mean())
         std = float(col.std(ddof=1)) if len(col) > 1 else 0.0
+        std = max(std, floor_rel * abs(mean))
         lo, hi = np.percentile(col, [2.5, 97.5]) if len(col) else (mean, mean)
         out[name] = {"mean": mean, "std": std, "ci95": [mean - Z95 * std, mean + Z95 * std],
                      "percentile95": [float(lo), float(hi)], "n": int(len(col))}

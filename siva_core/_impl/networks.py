@@ -39,6 +39,10 @@ class ParameterGenerator(nn.Module):
             self.head.bias.zero_()
         self.register_buffer("m0", torch.ones(n_params, dtype=torch.float64))
         self.register_buffer("e0", torch.zeros(n_params, dtype=torch.float64))
+        # local coordinates (output-error phase, ``set_local``); empty = off
+        self.register_buffer("anchor", torch.zeros(0, dtype=torch.float64))
+        self.register_buffer("step", torch.zeros(0, dtype=torch.float64))
+        self.register_buffer("log_mask", torch.zeros(0, dtype=torch.bool))
 
     def set_reference(self, values: torch.Tensor, exponents: torch.Tensor | None = None) -> None:
         """Centre the outputs on ``values`` (mantissa/exponent split unless given)."""
@@ -49,9 +53,32 @@ class ParameterGenerator(nn.Module):
         self.e0.copy_(exponents.to(torch.float64))
         self.m0.copy_(values / 10.0 ** self.e0)
 
+    def set_local(self, anchor: torch.Tensor, step: torch.Tensor, is_log: torch.Tensor) -> None:
+        """Switch to local coordinates around ``anchor``: x = step @ u with u the first n
+        outputs, theta = anchor * exp(x) for log parameters, anchor + x otherwise.  ``step``
+        is a Cholesky factor of the parameters' covariance (n, n), so one unit of output is
+        one standard error along uncorrelated directions whatever the parameter's magnitude:
+        the learning rate that moves alpha (sigma ~ 4e-3 relative) also resolves k1 (sigma
+        ~ 4e-5), which the float32 mantissa outputs cannot, and the alpha-beta valley
+        (correlation ~0.99) becomes round.  The head restarts at the anchor (small weights,
+        zero bias); the body is kept."""
+        self.anchor = anchor.to(torch.float64).clone()
+        self.step = step.to(torch.float64).clone()
+        self.log_mask = is_log.to(torch.bool).clone()
+        with torch.no_grad():
+            self.head.weight.mul_(0.1 / max(1e-12, float(self.head.weight.abs().max())))
+            self.head.bias.zero_()
+
+    @property
+    def local(self) -> bool:
+        return getattr(self, "anchor", None) is not None and self.anchor.numel() > 0
+
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         out = self.head(self.body(z)).to(torch.float64)
         n = self.n_params
+        if self.local:
+            x = out[..., :n] @ self.step.T
+            return torch.where(self.log_mask, self.anchor * torch.exp(x), self.anchor + x)
         if self.scientific:
             return (self.m0 + out[..., :n]) * torch.pow(10.0, self.e0 + out[..., n:])
         return self.m0 * 10.0 ** self.e0 * (1.0 + out[..., :n])

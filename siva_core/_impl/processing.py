@@ -20,6 +20,7 @@ even for a linear model).  Two remedies live here:
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections import Counter
@@ -29,6 +30,7 @@ from typing import Any, Callable, ClassVar, Iterable, Sequence
 import numpy as np
 from scipy import integrate, signal
 
+from .impulse import detect_impulse
 from .recording import Recording
 
 # A filter in the ledger: ("band", lo, hi) | ("high", fc) | ("low", fc) | ("notch", f0, q)
@@ -218,8 +220,8 @@ class Processing:
                     needs_diff = True
                 has_acc = has_acc or da is not None
         any_force = any(rec.has_force(dofs) for rec in recs)
-        impulsive = any_force and all(_impulsive(rec, dofs, 0.02) for rec in recs
-                                      if rec.has_force(dofs))
+        impulsive = any_force and all(detect_impulse(rec.stack("force", dofs, fill=0.0))
+                                      is not None for rec in recs if rec.has_force(dofs))
         probe = cls(start="impact" if impulsive else "start")
         summary = _analyse_spectra(recs, dofs, probe)
         fs_min = min(rec.fs for rec in recs)
@@ -265,28 +267,10 @@ class Processing:
         return out
 
     # ------------------------------------------------------------------ filters
-    def _sos(self, kind: str, cut: Any, fs: float) -> np.ndarray:
-        nyq = fs / 2
-        if kind == "band":
-            lo, hi = cut
-            if lo <= 0:
-                return signal.butter(self.order, min(hi, 0.95 * nyq), btype="lowpass", fs=fs,
-                                     output="sos")
-            if hi >= 0.95 * nyq:
-                return signal.butter(self.order, lo, btype="highpass", fs=fs, output="sos")
-            return signal.butter(self.order, [lo, hi], btype="bandpass", fs=fs, output="sos")
-        if kind == "high":
-            return signal.butter(self.order, cut, btype="highpass", fs=fs, output="sos")
-        if kind == "notch":
-            f0, q = cut
-            b, a = signal.iirnotch(f0, q, fs=fs)
-            return signal.tf2sos(b, a)
-        return signal.butter(self.order, min(cut, 0.95 * nyq), btype="lowpass", fs=fs,
-                             output="sos")
-
     def _filt(self, x: np.ndarray, kind: str, cut: Any, fs: float, axis: int = 0) -> np.ndarray:
         """Zero-phase (forward-backward) second-order sections; short records still work."""
-        sos = self._sos(kind, cut, fs)
+        sos = _design_sos(kind, tuple(cut) if isinstance(cut, (list, tuple)) else float(cut),
+                          float(fs), int(self.order))
         n = np.shape(x)[axis]
         padlen = min(3 * (2 * len(sos) + 1), max(n - 1, 0))
         return signal.sosfiltfilt(sos, x, axis=axis, padlen=padlen)
@@ -420,18 +404,22 @@ class Processing:
                 x = self._apply_key(x, key, fs, axis)
         return x
 
-    def _force(self, rec: Recording, dofs: Sequence[str]) -> np.ndarray:
-        """(T, n_dof) force as the chain uses it (gated when ``gate_force``)."""
+    def force(self, rec: Recording, dofs: Sequence[str]) -> np.ndarray:
+        """(T, n_dof) force as the chain uses it, before filtering: the record's force
+        columns (0 where a DOF has none), gated to its pulse(s) when ``gate_force``
+        (``impact_threshold`` of the peak, widened by ``gate_margin`` s; see ``impulse``).
+        The simulator is driven by this force, so that what is simulated is what the chain
+        reports."""
         f = rec.stack("force", dofs, fill=0.0)
-        if self.gate_force and np.any(f):
-            gate = _pulse_gate(np.abs(f).max(axis=1), self.impact_threshold,
-                               int(round(self.gate_margin * rec.fs)))
-            f = f * gate[:, None]
+        if self.gate_force:
+            pulse = detect_impulse(f, self.impact_threshold, require_impulsive=False)
+            if pulse is not None:
+                f = f * pulse.gate(int(round(self.gate_margin * rec.fs)))[:, None]
         return f
 
     def derive(self, rec: Recording, dofs: Sequence[str]) -> tuple[np.ndarray, ...]:
         """Full-rate (q, v, a, F) arrays, each (T, n_dof), before decimation/start."""
-        return self._derive_arrays(rec.fs, dofs, rec.get, self._force(rec, dofs))
+        return self._derive_arrays(rec.fs, dofs, rec.get, self.force(rec, dofs))
 
     def start_index(self, rec: Recording, dofs: Sequence[str]) -> int:
         """Index of the first kept sample: 0, a time, or just after the force pulse."""
@@ -441,13 +429,9 @@ class Processing:
             return int(np.searchsorted(rec.time, rec.time[0] + float(self.start)))
         if self.start != "impact":
             raise ValueError(f"start must be 'start', 'impact' or seconds, got {self.start!r}")
-        f = rec.stack("force", dofs, fill=0.0)
-        mag = np.abs(f).max(axis=1)
-        if mag.max() <= 0:
-            return 0
-        peak = int(np.argmax(mag))
-        after = np.flatnonzero(mag[peak:] < self.impact_threshold * mag[peak])
-        return peak + (int(after[0]) if after.size else 0)
+        pulse = detect_impulse(rec.stack("force", dofs, fill=0.0), self.impact_threshold,
+                               require_impulsive=False)
+        return 0 if pulse is None else pulse.end
 
     def decimation(self, fs: float) -> int:
         """Integer decimation factor reaching ``decimate_to`` (1 when off or above fs)."""
@@ -505,7 +489,7 @@ class Processing:
             return sim[qty][..., index[d]]
 
         qq, vv, aa, f = self._derive_arrays(measured.fs, dofs, given,
-                                            self._force(measured, dofs))
+                                            self.force(measured, dofs))
         return self._finish(measured, dofs, qq, vv, aa, f)
 
     def with_(self, **kw: Any) -> "Processing":
@@ -531,6 +515,34 @@ class Processing:
         parts.append(f"from {self.start!r}" if not isinstance(self.start, (int, float))
                      else f"from t = {self.start:g} s")
         return "; ".join(parts) if parts else "none"
+
+
+@functools.lru_cache(maxsize=512)
+def _design_sos(kind: str, cut: float | tuple[float, float], fs: float,
+                order: int) -> np.ndarray:
+    """Second-order sections of one of the chain's filters.  Memoised: designing a
+    Butterworth costs more than running it on a short record, and refine/diagnose run the
+    same few filters thousands of times.  The returned array is shared: do not modify it
+    (scipy's filters only read it, but refuse a read-only buffer)."""
+    nyq = fs / 2
+    if kind == "band":
+        lo, hi = cut
+        if lo <= 0:
+            sos = signal.butter(order, min(hi, 0.95 * nyq), btype="lowpass", fs=fs,
+                                output="sos")
+        elif hi >= 0.95 * nyq:
+            sos = signal.butter(order, lo, btype="highpass", fs=fs, output="sos")
+        else:
+            sos = signal.butter(order, [lo, hi], btype="bandpass", fs=fs, output="sos")
+    elif kind == "high":
+        sos = signal.butter(order, cut, btype="highpass", fs=fs, output="sos")
+    elif kind == "notch":
+        f0, q = cut
+        b, a = signal.iirnotch(f0, q, fs=fs)
+        sos = signal.tf2sos(b, a)
+    else:
+        sos = signal.butter(order, min(cut, 0.95 * nyq), btype="lowpass", fs=fs, output="sos")
+    return sos
 
 
 def simulated_recording(measured: Recording, dofs: Sequence[str] | Any, q: np.ndarray,
@@ -614,23 +626,6 @@ def _decays(rec: Recording, dofs: Sequence[str], ratio: float = 0.1) -> bool:
         if not tail < ratio * head:
             return False
     return True
-
-
-def _pulse_gate(mag: np.ndarray, threshold: float, margin: int) -> np.ndarray:
-    """1 on samples within ``margin`` of |F| > threshold x peak, else 0."""
-    on = mag > threshold * mag.max()
-    if margin > 0 and on.any():
-        on = np.convolve(on.astype(float), np.ones(2 * margin + 1), mode="same") > 0
-    return on.astype(float)
-
-
-def _impulsive(rec: Recording, dofs: Sequence[str], threshold: float) -> bool:
-    """Is the force a short pulse (< 10 % of the record above ``threshold`` of its peak)?"""
-    f = rec.stack("force", dofs, fill=0.0)
-    mag = np.abs(f).max(axis=1)
-    if mag.max() <= 0:
-        return False
-    return float(np.mean(mag > threshold * mag.max())) < 0.10
 
 
 def _analyse_spectra(recs: Sequence[Recording], dofs: Sequence[str],

@@ -24,7 +24,7 @@ parameter for impact records, whose response is very sensitive to the impulse.
 """
 from __future__ import annotations
 
-import copy
+import dataclasses
 import math
 import time
 import warnings
@@ -34,12 +34,17 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
+from .bootstrap import (Series, bootstrap_covariance, perturbation_solutions,
+                        phase_randomized, series_of)
+from .ensemble import Z95
 from .processing import Processing, States
 from .recording import Recording
 from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
                        simulate, stage_force)
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
+#: relative standard error below which no interval is reported (simulation accuracy)
+NUMERICAL_REL_STD = 1e-6
 #: a log-scaled parameter stays within this factor of theta0 (see ``_x_bounds``)
 LOG_RANGE = 20.0
 #: full-record cost below which theta0 is taken to be in the basin (no growing horizons):
@@ -86,14 +91,11 @@ class OutputErrorProblem:
     processing: Processing
     backend: str = "numpy"
     interp: str = "linear"
-    _chain: Processing | None = field(default=None, repr=False, compare=False)
 
     @property
     def chain(self) -> Processing:
-        """The processing actually run (the same settings, memoised filter designs)."""
-        if self._chain is None:
-            self._chain = fast_chain(self.processing)
-        return self._chain
+        """The processing run on measured and simulated records."""
+        return self.processing
 
     @property
     def n_residuals(self) -> int:
@@ -112,7 +114,7 @@ class OutputErrorProblem:
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
         ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
         processing = processing or Processing()
-        chain = fast_chain(processing)
+        chain = processing
         recs = [records] if isinstance(records, Recording) else list(records)
         if not recs:
             raise ValueError("output error needs at least one record")
@@ -146,7 +148,7 @@ class OutputErrorProblem:
             state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
                                         np.sqrt(np.mean(meas.v ** 2, axis=0))])
             prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
-        return cls(structure, prepared, processing, use, interp, chain)
+        return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
                          force_scale: np.ndarray | None = None) -> list[States | None]:
@@ -228,35 +230,7 @@ class OutputErrorProblem:
                                 np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
                                 r.state_rms))
         return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
-                                  self.interp, self.chain)
-
-
-# ---------------------------------------------------------------------------- fast chain
-def fast_chain(processing: Processing) -> Processing:
-    """A copy of the chain whose filter designs are memoised.
-
-    ``Processing._sos`` designs the Butterworth filter on every call, which is most of the
-    chain's cost when it runs thousands of times on short records (refine, diagnose).  The
-    copy's class subclasses the original's, so all other behaviour is the original's.  Use
-    it internally only: dataclass equality is class-sensitive.
-    """
-    if getattr(processing, "_siva_fast", False):
-        return processing
-    base = type(processing)
-    base_sos = base._sos
-
-    def _sos(self: Processing, kind: str, cut: Any, fs: float) -> Any:
-        cache = self.__dict__.setdefault("_siva_sos_cache", {})
-        key = (kind, tuple(cut) if isinstance(cut, (list, tuple)) else cut, float(fs))
-        if key not in cache:
-            cache[key] = base_sos(self, kind, cut, fs)
-        return cache[key]
-
-    fast_cls = type(f"Fast{base.__name__}", (base,), {"_sos": _sos, "_siva_fast": True})
-    out = copy.copy(processing)
-    out.__class__ = fast_cls
-    out.__dict__.pop("_siva_sos_cache", None)
-    return out
+                                  self.interp)
 
 
 def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
@@ -293,7 +267,7 @@ def output_error(structure: Any, thetas: Any, records: Recording | Sequence[Reco
     """(B,) normalised output-error cost of each parameter set: the mean over records and
     DOFs of MSE / (measured RMS)^2 (0 = perfect, 1 = as bad as predicting zero).
 
-    Each record is simulated (``simulate_like``), rebuilt as a Recording with the measured
+    Each record is simulated (``simulate``), rebuilt as a Recording with the measured
     channels, put through the same chain and compared with the processed measurement on
     the measured quantities.  ``kw``: substeps ("auto"), backend, force_gate, initial,
     interp, omega_h (see ``OutputErrorProblem.build``).
@@ -346,10 +320,12 @@ def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[
 class RefineResult:
     """Refined parameters with Gauss-Newton uncertainty.
 
-    ``std``/``ci95``/``cov`` follow s^2 (J^T J)^-1, which assumes independent residuals.
-    Filtered or decimated records have correlated residuals, for which these are optimistic:
-    ``ci_inflation`` (>= 1) estimates by how much from the residuals' autocorrelation
-    (sqrt(N / N_eff)); multiply std by it for a conservative interval.
+    ``std``/``ci95``/``cov``: by default (``uncertainty="bootstrap"``) the moving-block
+    bootstrap of the linearised fit at the optimum (``bootstrap.py``), which holds for the
+    correlated residuals of filtered records and for misfit; ``std_gauss_newton`` is the
+    textbook s^2 (J^T J)^-1 (independent residuals), kept for comparison, and
+    ``ci_inflation`` the RMS ratio of the two.  ``jac``/``residuals``/``dtheta_dx``: the
+    linearisation at the optimum in the fitted variables (theta, then nuisance).
     """
 
     theta: np.ndarray
@@ -367,6 +343,18 @@ class RefineResult:
     names: list[str] = field(default_factory=list)
     force_scale: np.ndarray | None = None   # per record, when fit_force_scale
     stages: list[dict[str, Any]] = field(default_factory=list)
+    std_gauss_newton: np.ndarray | None = None
+    uncertainty: str = "bootstrap"
+    block_length: int = 1
+    jac: np.ndarray | None = field(default=None, repr=False)
+    residuals: np.ndarray | None = field(default=None, repr=False)
+    dtheta_dx: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Parameter correlation matrix (e.g. alpha and beta of a power law trade off)."""
+        s = np.sqrt(np.clip(np.diag(self.cov), 1e-300, None))
+        return self.cov / np.outer(s, s)
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
         """{name: {"mean", "std", "ci95"}}, the shape of the service's estimate."""
@@ -383,7 +371,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
-           gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0) -> RefineResult:
+           gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
+           uncertainty: str = "bootstrap", n_boot: int = 400) -> RefineResult:
     """Output-error refinement from theta0 (e.g. SIVA's Approach III).
 
     Minimises the residuals of ``output_error`` with ``least_squares`` (TRF, bounds from the
@@ -516,16 +505,117 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     r = res.fun
     dof = max(1, r.size - n_x)
     s2 = float(r @ r) / dof
-    cov_full = s2 * _pinv_sym(res.jac.T @ res.jac) * np.outer(dth, dth)
-    cov = cov_full[:len(free), :len(free)]
+    cov_gn = (s2 * _pinv_sym(res.jac.T @ res.jac) * np.outer(dth, dth))[:len(free), :len(free)]
+    if uncertainty == "bootstrap":
+        # two bootstraps of the linearised fit (nuisance columns included, so they are
+        # profiled out), the wider per parameter: (1) moving blocks of (J, r) rows, a
+        # sandwich covariance that holds for correlated and misfit residuals; (2)
+        # parametric: force-sensor noise in the pulse propagated through the simulation
+        # and the chain, plus measurement noise with the residuals' own spectrum
+        series = series_of([rr.target.shape for rr in full.records])
+        cov_x, block = bootstrap_covariance(res.jac, r, series, n_boot=n_boot, seed=0)
+        E = noise_replicates(full, th, extra, r, series, n_rep=max(16, n_boot // 6))
+        xp = perturbation_solutions(res.jac, E)
+        cov_p = np.cov(xp, rowvar=False).reshape(n_x, n_x)
+        cov = _wider((cov_x * np.outer(dth, dth))[:len(free), :len(free)],
+                     (cov_p * np.outer(dth, dth))[:len(free), :len(free)])
+    elif uncertainty == "gauss-newton":
+        cov, block = cov_gn, 1
+    else:
+        raise ValueError(f"uncertainty must be 'bootstrap' or 'gauss-newton', got {uncertainty!r}")
+    # never narrower than the simulator's own accuracy: on noise-free records the
+    # statistical spread vanishes and RK4 vs the data's integrator differ by ~1e-7
+    floor = NUMERICAL_REL_STD * np.abs(theta)
+    cov = cov + np.diag(floor ** 2)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    ci = np.stack([theta - 1.96 * std, theta + 1.96 * std], axis=1)
+    std_gn = np.sqrt(np.clip(np.diag(cov_gn), 0, None))
+    ci = np.stack([theta - Z95 * std, theta + Z95 * std], axis=1)
+    with np.errstate(all="ignore"):
+        ratio = np.where(std_gn > 0, std / std_gn, 1.0)
     return RefineResult(theta=theta, std=std, ci95=ci, cov=cov, cost=float(r @ r), nfev=nfev,
                         success=bool(res.success), message=str(res.message), njev=njev,
                         substeps=[rr.substeps for rr in full.records],
                         time_s=time.perf_counter() - t_start,
-                        ci_inflation=_inflation(full, r), names=free,
-                        force_scale=None if fsc is None else fsc[0], stages=stages)
+                        ci_inflation=float(np.sqrt(np.mean(ratio ** 2))), names=free,
+                        force_scale=None if fsc is None else fsc[0], stages=stages,
+                        std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
+                        jac=res.jac, residuals=r, dtheta_dx=dth)
+
+
+def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
+                     r: np.ndarray, series: Sequence[Series], n_rep: int = 64,
+                     seed: int = 1) -> np.ndarray:
+    """(n_rep, n_residuals) residual perturbations of parametric-bootstrap replicates.
+
+    Each replicate: the measurement noise as a phase-randomised copy of the residuals
+    ``r`` (same spectrum, so the same correlation), plus -- for impulsive records -- the
+    change of the simulated, processed response when the force in the pulse gets a new
+    draw of the force sensor's noise (its level read off the force channel outside the
+    pulse, where it measures nothing but noise).  The force noise matters because its
+    effect is not stationary: it starts a free decay that stays correlated to the end."""
+    rng = np.random.default_rng(seed)
+    E = np.stack([phase_randomized(r, series, rng) for _ in range(n_rep)])
+    col = 0
+    for k, rec in enumerate(prob.records):
+        size = rec.target.size
+        sigma, pulse = _force_noise(prob.structure, rec)
+        if sigma is not None:
+            fs = None if "force_scales" not in extra else extra["force_scales"][:, k]
+            dq = None if "dq0" not in extra else extra["dq0"][:, k]
+            dv = None if "dv0" not in extra else extra["dv0"][:, k]
+            base, ok = _record_residuals(prob, k, rec, theta, fs, dq, dv)
+            for b in range(n_rep):
+                noisy = rec.force.copy()
+                noisy[pulse] += sigma * rng.standard_normal((int(pulse.sum()), noisy.shape[1]))
+                alt = dataclasses.replace(rec, force=noisy, _staged=None)
+                rb, okb = _record_residuals(prob, k, alt, theta, fs, dq, dv)
+                if ok[0] and okb[0]:
+                    E[b, col:col + size] += (rb - base)[0]
+        col += size
+    # centred: a nonlinear response to force noise has a small mean shift (second order),
+    # which is the estimator's bias estimate, not a spread to sample from
+    return E - E.mean(axis=0)
+
+
+def _record_residuals(prob: OutputErrorProblem, k: int, rec: _Record, theta: np.ndarray,
+                      fs: np.ndarray | None, dq: np.ndarray | None, dv: np.ndarray | None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised residuals of record ``k`` alone (as in ``residuals``) with ``rec``'s force."""
+    saved = prob.records[k]
+    prob.records[k] = rec
+    try:
+        st, ok = prob._processed(np.atleast_2d(theta), k, fs, dq, dv)
+    finally:
+        prob.records[k] = saved
+    w = 1.0 / (rec.rms * math.sqrt(rec.target.shape[0] * prob.n_groups))
+    sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(rec.quantities)],
+                   axis=-1)
+    return ((sim - rec.target) * w).reshape(sim.shape[0], -1), ok
+
+
+def _force_noise(structure: Any, rec: _Record) -> tuple[np.ndarray | None, np.ndarray]:
+    """(per-DOF force-sensor noise std, boolean mask of the pulse samples) of an impulsive
+    record; (None, empty) when the force is continuous or absent."""
+    if rec.force is None or not rec.rec.has_force(structure.dofs):
+        return None, np.zeros(0, dtype=bool)
+    raw = rec.rec.stack("force", structure.dofs, fill=0.0)
+    pulse = np.any(rec.force != 0, axis=1)
+    if raw.shape != rec.force.shape or not pulse.any() or pulse.mean() > 0.05:
+        return None, np.zeros(0, dtype=bool)
+    quiet = raw[~pulse]
+    sigma = 1.4826 * np.median(np.abs(quiet - np.median(quiet, axis=0)), axis=0)
+    return sigma, pulse
+
+
+def _wider(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """The covariance with the larger variance per parameter (correlations from it too)."""
+    pick = np.diag(c1) >= np.diag(c2)
+    s = np.sqrt(np.clip(np.where(pick, np.diag(c1), np.diag(c2)), 0, None))
+    corr1 = c1 / np.sqrt(np.clip(np.outer(np.diag(c1), np.diag(c1)), 1e-300, None))
+    corr2 = c2 / np.sqrt(np.clip(np.outer(np.diag(c2), np.diag(c2)), 1e-300, None))
+    corr = np.where(np.outer(pick, pick), corr1, np.where(np.outer(~pick, ~pick), corr2,
+                                                          0.5 * (corr1 + corr2)))
+    return corr * np.outer(s, s)
 
 
 def _state_derived(rec: Recording, dofs: Sequence[str]) -> bool:
@@ -682,32 +772,6 @@ def _pinv_sym(A: np.ndarray) -> np.ndarray:
     tol = max(float(w.max()), 0.0) * A.shape[0] * np.finfo(float).eps
     inv = np.where(w > tol, 1.0 / np.where(w > tol, w, 1.0), 0.0)
     return (V * inv) @ V.T
-
-
-def _inflation(prob: OutputErrorProblem, r: np.ndarray) -> float:
-    """sqrt(N / N_eff) of the residuals, N_eff from their autocorrelation (summed up to the
-    first non-positive lag); 1 for white residuals, > 1 when filtering correlated them."""
-    ratios = []
-    col = 0
-    for rec in prob.records:
-        T, n = rec.target.shape
-        block = r[col:col + T * n].reshape(T, n)
-        col += T * n
-        for k in range(n):
-            e = block[:, k] - block[:, k].mean()
-            var = float(e @ e)
-            if var <= 0 or T < 8:
-                continue
-            L = min(T // 4, 2000)
-            spec = np.fft.rfft(e, 2 * T)
-            ac = np.fft.irfft(np.abs(spec) ** 2)[:L + 1] / var
-            s = 1.0
-            for lag in range(1, L + 1):
-                if ac[lag] <= 0:
-                    break
-                s += 2 * ac[lag] * (1 - lag / T)
-            ratios.append(s)
-    return float(math.sqrt(max(1.0, float(np.mean(ratios))))) if ratios else 1.0
 
 
 __all__ = ["output_error", "displacement_mse", "refine", "RefineResult", "OutputErrorProblem"]

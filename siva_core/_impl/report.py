@@ -48,6 +48,8 @@ LABELS = {"approach_I": "Approach I (mean params)", "approach_II": "Approach II"
           "approach_III": "Approach III", "best": "best"}
 
 Progress = Callable[[str], None]
+#: parameter sets drawn from N(best, best_std) for the 95 % band of the recommended estimate
+N_BEST_BAND = 40
 
 
 def _stderr(msg: str) -> None:
@@ -66,6 +68,8 @@ class _RecordSims:
     points: dict[str, np.ndarray]   # approach -> (T, n_dof) mm (NaN if diverged)
     n_diverged: int
     fs: float
+    best_sims: np.ndarray | None = None  # (S, T, n_dof) mm, sets drawn from N(best, best_std)
+    modes_hz: tuple[float, ...] = ()    # natural frequencies of best: the axes must show them
 
 
 # ---------------------------------------------------------------------------- entry point
@@ -83,6 +87,7 @@ def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | 
     out.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda _m: None)
     names = list(res.names)
+    units = est.structure.parameter_units() if hasattr(est.structure, "parameter_units") else {}
     truth_vec = _truth_vector(names, truth)
     written: list[tuple[Path, str]] = []
     t_start = time.perf_counter()
@@ -99,10 +104,10 @@ def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | 
          "(a) Losses per epoch: discriminator (ln 4 = optimum, eq. 3), adversarial term "
          "(ln(4)/2), MSE of the accelerations (log axis); dotted: convergence epoch.")
     window = _window(est, res)
-    save(_fig_parameters(res, names, window, truth_vec), "parameters.png",
-         "(b) Parameter per epoch (mean of the epoch's last batch); shaded: the Approach II "
-         "window.")
-    save(_fig_distributions(res, names, truth_vec), "distributions.png",
+    save(_fig_parameters(res, names, window, truth_vec, units), "parameters.png",
+         "(b) Parameter per epoch (mean of the epoch's last batch); shaded green: the Approach "
+         "II window; dashed red: best, with its 95 % interval shaded red.")
+    save(_fig_distributions(res, names, truth_vec, units), "distributions.png",
          "(c) Approach II distribution: histogram, fitted normal pdf over +-6 std, mean "
          "(dashed red), 95 % CI (green); Approach III, best and exact value marked.")
 
@@ -119,11 +124,14 @@ def write_report(est: Any, out_dir: str | Path, *, truth: Mapping[str, float] | 
     for k, rs in enumerate(sims):
         slug = f"{k}_{_slug(rs.name)}"
         save(_fig_response(rs, est.structure.dofs), f"response_{slug}.png",
-             f"(d) {rs.role} record {rs.name}: measured vs simulated displacement.")
+             f"(d) {rs.role} record {rs.name}: measured vs simulated displacement, with the "
+             "95 % bands of Approach I and of best, and the residuals (measured - simulated).")
         save(_fig_spectrum(rs, est.structure.dofs), f"spectrum_{slug}.png",
-             f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra.")
+             f"(e) {rs.role} record {rs.name}: Fourier amplitude spectra; dashed grey: the "
+             "natural frequencies of best (the axis reaches past the highest).")
         save(_fig_cwt(rs, est.structure.dofs), f"cwt_{slug}.png",
-             f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best.")
+             f"(f) {rs.role} record {rs.name}: CWT (complex Morlet, max = 1), measured vs best; "
+             "dashed white: the natural frequencies of best (the axis reaches past the highest).")
 
     index = out / "index.html"
     index.write_text(_html(est, res, names, truth_vec, written, sims, note))
@@ -220,10 +228,23 @@ def _simulate_record(est: Any, res: Any, rec: Recording, role: str, n_sims: int,
         n_band = int(min(n_band, max(20, budget_s / per_set)))
     band_q = processed(sub[:n_band])[0] if n_band else []
     band = np.array([q for q in band_q if np.all(np.isfinite(q))]).reshape(-1, T, n)
+    best_band = None
+    best_std = getattr(res, "best_std", None)
+    if best_std is not None and np.all(np.isfinite(best_std)):
+        # the recommended estimate's own band: sets drawn from its normal approximation
+        rng = np.random.default_rng(0)
+        draws = pts[3] + rng.standard_normal((N_BEST_BAND, len(pts[3]))) * np.asarray(best_std)
+        bq = [q for q in processed(draws)[0] if np.all(np.isfinite(q))]
+        best_band = np.array(bq).reshape(-1, T, n) if bq else None
     if t_axis is None:  # every point estimate diverged: the chain's time axis of the record
         t_axis = prob.chain.apply(rec, st.dofs).t
+    try:
+        modes = tuple(float(f) for f in st.linear_modes(pts[3]).get("frequency_hz", [])
+                      if np.isfinite(f))
+    except Exception:  # noqa: BLE001 - the axes fall back to the energy criterion
+        modes = ()
     return _RecordSims(rec.name, role, t_axis, target, band, dict(zip(order, point_q)),
-                       len(band_q) - len(band), 1.0 / (t_axis[1] - t_axis[0]))
+                       len(band_q) - len(band), 1.0 / (t_axis[1] - t_axis[0]), best_band, modes)
 
 
 def _mse(a: np.ndarray, b: np.ndarray) -> float:
@@ -280,8 +301,14 @@ def _fig_losses(res: Any) -> Any:
     return fig
 
 
+def _unit(units: Mapping[str, str], p: str) -> str:
+    u = units.get(p, "")
+    return f" [{u}]" if u else ""
+
+
 def _fig_parameters(res: Any, names: Sequence[str], window: tuple[int, int] | None,
-                    truth: np.ndarray | None) -> Any:
+                    truth: np.ndarray | None, units: Mapping[str, str] | None = None) -> Any:
+    units = units or {}
     theta = np.array(res.history["theta"], dtype=float).reshape(-1, len(names))
     ep = np.arange(len(theta))
     nr, nc = _grid(len(names))
@@ -295,19 +322,28 @@ def _fig_parameters(res: Any, names: Sequence[str], window: tuple[int, int] | No
                        label="Approach II window")
         if truth is not None and np.isfinite(truth[k]):
             ax.axhline(truth[k], color=COLOURS["truth"], lw=1, label=f"exact {truth[k]:.5g}")
-        ax.axhline(res.best[k], color=COLOURS["best"], ls="--", lw=1, label=f"best {res.best[k]:.5g}")
+        ax.axhline(res.best[k], color=COLOURS["best"], ls="--", lw=1.3, label=f"best {res.best[k]:.5g}")
+        best_lo = best_hi = float(res.best[k])
+        if res.best_std is not None and np.isfinite(res.best_std[k]):
+            best_lo, best_hi = (float(res.best[k] - Z95 * res.best_std[k]),
+                                float(res.best[k] + Z95 * res.best_std[k]))
+            ax.axhspan(best_lo, best_hi, color=COLOURS["best"], alpha=0.15, lw=0,
+                       label="best 95 %")
         if res.converged_epoch is not None:
             ax.axvline(res.converged_epoch, color="tab:red", ls=":", lw=1)
         # a first-epoch excursion would flatten the interesting part: limit to the harvest
         tail = theta[len(theta) // 4:, k]
         if len(tail) > 4 and np.all(np.isfinite(tail)):
             lo, hi = np.percentile(tail, [0.5, 99.5])
-            refs = [res.best[k]] + ([truth[k]] if truth is not None and np.isfinite(truth[k]) else [])
+            refs = [best_lo, best_hi] + ([truth[k]] if truth is not None and np.isfinite(truth[k]) else [])
             lo, hi = min(lo, *refs), max(hi, *refs)
             pad = 0.15 * (hi - lo) if hi > lo else 0.05 * abs(hi) + 1e-12
-            full_lo, full_hi = np.nanmin(theta[:, k]), np.nanmax(theta[:, k])
+            # the reference lines must stay on the axis even where the epochs never went
+            full_lo = min(np.nanmin(theta[:, k]), *refs)
+            full_hi = max(np.nanmax(theta[:, k]), *refs)
             ax.set_ylim(max(full_lo, lo - pad) - pad * 0.2, min(full_hi, hi + pad) + pad * 0.2)
-        ax.set_title(p)
+        ax.set_title(p + _unit(units, p))
+        ax.set_ylabel(p + _unit(units, p))
         ax.set_xlabel("epoch")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="best")
@@ -316,7 +352,9 @@ def _fig_parameters(res: Any, names: Sequence[str], window: tuple[int, int] | No
     return fig
 
 
-def _fig_distributions(res: Any, names: Sequence[str], truth: np.ndarray | None) -> Any:
+def _fig_distributions(res: Any, names: Sequence[str], truth: np.ndarray | None,
+                       units: Mapping[str, str] | None = None) -> Any:
+    units = units or {}
     S = np.asarray(res.samples_II, dtype=float).reshape(-1, len(names))
     nr, nc = _grid(len(names))
     fig, axs = _subplots(nr, nc, figsize=(4.3 * nc, 3.0 * nr),
@@ -350,7 +388,8 @@ def _fig_distributions(res: Any, names: Sequence[str], truth: np.ndarray | None)
                 ax.plot([], [], color=c, ls=ls, label=text)
             else:
                 ax.axvline(val, color=c, ls=ls, lw=1.4, label=text)
-        ax.set_title(p)
+        ax.set_title(p + _unit(units, p))
+        ax.set_xlabel(p + _unit(units, p))
         ax.set_ylabel("pdf")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6.5, loc="upper right")
@@ -361,7 +400,7 @@ def _fig_distributions(res: Any, names: Sequence[str], truth: np.ndarray | None)
 
 def _fig_response(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     n = len(dofs)
-    fig, axs = _subplots(n, 2, figsize=(13, 3.0 * n), squeeze=False,
+    fig, axs = _subplots(n, 3, figsize=(18, 3.0 * n), squeeze=False,
                             sharex=True)
     t = rs.t
     for k, d in enumerate(dofs):
@@ -383,11 +422,25 @@ def _fig_response(rs: _RecordSims, dofs: Sequence[str]) -> Any:
                      + (f", {rs.n_diverged} sims diverged" if rs.n_diverged else ""))
         ax = axs[k, 1]
         ax.plot(t, m, color=COLOURS["measured"], lw=1.0, label="measured")
+        if rs.best_sims is not None and len(rs.best_sims):
+            lo, hi = np.percentile(rs.best_sims[:, :, k], [2.5, 97.5], axis=0)
+            ax.fill_between(t, lo, hi, color=COLOURS["best"], alpha=0.25, lw=0,
+                            label=f"best 95 % band ({len(rs.best_sims)} sets from its CI)")
         for key, ls in (("approach_II", "-"), ("approach_III", "--"), ("best", ":")):
             y = rs.points[key][:, k]
             ax.plot(t, y, color=COLOURS[key], lw=1.0, ls=ls,
                     label=f"{LABELS[key]} (MSE {_mse(m, y):.3g} mm²)")
         ax.set_title(f"{rs.name} ({rs.role}) - {d}: Approaches II, III, best")
+        ax = axs[k, 2]
+        for key, ls in (("best", "-"), ("approach_II", "--")):
+            y = rs.points[key][:, k]
+            if np.all(np.isfinite(y)):
+                r = m - y
+                ax.plot(t, r, color=COLOURS[key], lw=0.8, ls=ls,
+                        label=f"{LABELS[key]}: RMS {np.sqrt(np.mean(r ** 2)):.3g} mm "
+                              f"({100 * np.sqrt(np.mean(r ** 2) / max(np.mean(m ** 2), 1e-300)):.1f} % of measured)")
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_title(f"{d}: residual, measured - simulated")
         for ax in axs[k]:
             ax.set_ylabel(f"{d} displacement [mm]")
             ax.grid(alpha=0.3)
@@ -400,7 +453,7 @@ def _fig_response(rs: _RecordSims, dofs: Sequence[str]) -> Any:
 def _fig_spectrum(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     n = len(dofs)
     fig, axs = _subplots(n, 1, figsize=(9, 3.0 * n), squeeze=False)
-    fmin, fmax = frequency_band(rs.measured, rs.fs)
+    fmin, fmax = frequency_band(rs.measured, rs.fs, include=rs.modes_hz)
     for k, d in enumerate(dofs):
         ax = axs[k, 0]
         f, a = fourier_amplitude(rs.measured[:, k], rs.fs)
@@ -420,6 +473,11 @@ def _fig_spectrum(rs: _RecordSims, dofs: Sequence[str]) -> Any:
         floor = float(np.percentile(band[band > 0], 1)) / 3 if np.any(band > 0) else top * 1e-4
         ax.set_ylim(max(floor, top * 1e-5), top * 3)
         ax.set_xlim(0, fmax)
+        for j, fm in enumerate(rs.modes_hz):
+            ax.axvline(fm, color="tab:gray", lw=0.8, ls="--",
+                       label="natural frequencies of best" if j == 0 else None)
+            ax.annotate(f"{fm:.3g} Hz", (fm, 1), xycoords=("data", "axes fraction"),
+                        xytext=(2, -10), textcoords="offset points", fontsize=7, color="tab:gray")
         ax.set_title(f"{rs.name} ({rs.role}) - {d}: Fourier amplitude")
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel("amplitude [mm]")
@@ -433,7 +491,7 @@ def _fig_cwt(rs: _RecordSims, dofs: Sequence[str]) -> Any:
     fig, axs = _subplots(n, 2, figsize=(12, 3.0 * n), squeeze=False,
                             sharey="row")
     t = rs.t
-    _, fmax = frequency_band(rs.measured, rs.fs)
+    _, fmax = frequency_band(rs.measured, rs.fs, include=rs.modes_hz)
     freqs = np.linspace(max(fmax / 100, 2 * rs.fs / len(t)), fmax, 96)
     stride = max(1, len(t) // 1500)
     im = None
@@ -448,6 +506,9 @@ def _fig_cwt(rs: _RecordSims, dofs: Sequence[str]) -> Any:
                                interpolation="nearest")
             else:
                 ax.text(0.5, 0.5, "simulation diverged", ha="center", transform=ax.transAxes)
+            for fm in rs.modes_hz:
+                if freqs[0] <= fm <= freqs[-1]:
+                    ax.axhline(fm, color="white", ls="--", lw=0.7)
             ax.set_title(f"{rs.name} - {d}: CWT {label}")
             ax.set_xlabel("time [s]")
             ax.set_ylabel("frequency [Hz]")
@@ -468,30 +529,62 @@ def _fmt(x: Any) -> str:
     return f"{v:.5g}" if np.isfinite(v) else str(v)
 
 
+def _interval(value: float, lo: float, hi: float, unit: str) -> str:
+    """"v ± h unit (±r %)": readable where "[lo, hi]" would print the same digits twice."""
+    half = 0.5 * (hi - lo)
+    unit = "" if unit == "-" else unit  # dimensionless: the unit column says so
+    rel = f" (±{100 * half / abs(value):.2g} %)" if value else ""
+    return f"{_fmt(value)} ± {float(half):.2g}{(' ' + html.escape(unit)) if unit else ''}{rel}"
+
+
+def _recommendation(res: Any) -> str:
+    """Which estimate to use and why, in one paragraph (what ``best`` is and how sure)."""
+    refined = res.best_std is not None
+    oe = (res.metrics.get("train") or {}).get("best", {}).get("output_error")
+    why = ("<b>Use <code>best</code></b>: the output-error refinement of Approach III, i.e. "
+           "the parameters whose simulation, driven by the measured force and passed through "
+           "the same processing chain as the measurement, matches the measured displacement "
+           "best" + (f" (normalised output error {_fmt(oe)} on the training records)" if oe is not None else "")
+           + ". Approaches I and II describe the trained generator and carry the processing "
+           "chain's bias on measured data; use them to see how well the data constrain a "
+           "parameter, not as the value.")
+    if refined:
+        why += (" Its 95 % interval is the Gauss-Newton one, inflated for correlated "
+                "residuals.")
+    else:
+        why += (" The refinement did not lower the output error, so <code>best</code> is "
+                "Approach III's winner and has no interval of its own.")
+    return f"<p>{why}</p>"
+
+
 def _html(est: Any, res: Any, names: Sequence[str], truth: np.ndarray | None,
           figures: list[tuple[Path, str]], sims: list[_RecordSims], note: str | None) -> str:
     e = html.escape
+    units = est.structure.parameter_units() if hasattr(est.structure, "parameter_units") else {}
     rows = []
     for k, p in enumerate(names):
+        u = units.get(p, "")
         I, II = res.approach_I[p], res.approach_II[p]
-        best_ci = ""
-        if res.best_std is not None:
+        if res.best_std is not None and np.isfinite(res.best_std[k]):
             s = float(res.best_std[k])
-            best_ci = f" [{_fmt(res.best[k] - Z95 * s)}, {_fmt(res.best[k] + Z95 * s)}]"
-        cells = [e(p)]
+            use = _interval(float(res.best[k]), res.best[k] - Z95 * s, res.best[k] + Z95 * s, u)
+        else:
+            use = f"{_fmt(res.best[k])}{(' ' + e(u)) if u and u != '-' else ''} (no interval)"
+        cells = [f"{e(p)}", e(u) or "–", f"<b>{use}</b>"]
         if truth is not None:
             cells.append(_fmt(truth[k]))
-        cells += [f"{_fmt(I['mean'])} [{_fmt(I['ci95'][0])}, {_fmt(I['ci95'][1])}]",
-                  f"{_fmt(II['mean'])} [{_fmt(II['ci95'][0])}, {_fmt(II['ci95'][1])}]",
-                  _fmt(res.approach_III[k]), _fmt(res.best[k]) + best_ci]
-        if truth is not None and np.isfinite(truth[k]) and truth[k] != 0:
-            cells.append(f"{100 * (res.best[k] - truth[k]) / abs(truth[k]):+.3f} %")
+            err = (f"{100 * (res.best[k] - truth[k]) / abs(truth[k]):+.3f} %"
+                   if np.isfinite(truth[k]) and truth[k] != 0 else "–")
+            cells.append(err)
+        cells += [_interval(I["mean"], I["ci95"][0], I["ci95"][1], u),
+                  _interval(II["mean"], II["ci95"][0], II["ci95"][1], u),
+                  _fmt(res.approach_III[k])]
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    head = ["parameter"] + (["exact"] if truth is not None else []) + \
-        ["Approach I mean [95 % CI]", "Approach II mean [95 % CI]", "Approach III",
-         "best [95 % CI]"] + (["best error"] if truth is not None else [])
-    ptable = ("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>"
-              + "".join(rows) + "</table>")
+    head = ["parameter", "unit", "use this: best ± 95 %"] + \
+        (["exact", "best error"] if truth is not None else []) + \
+        ["Approach I mean ± 95 %", "Approach II mean ± 95 %", "Approach III"]
+    ptable = (_recommendation(res) + "<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head)
+              + "</tr>" + "".join(rows) + "</table>")
 
     mrows = []
     for split in ("train", "validation"):

@@ -17,7 +17,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .ensemble import normal_summary
+from .refine import NUMERICAL_REL_STD
 from .processing import Processing
+from .progress import Eta
 from .recording import Recording
 from .structure import Structure
 from .training import SivaSettings, SivaTrainer
@@ -39,8 +41,7 @@ def choose_processing(processing: str | dict | Processing | None, recordings: Se
     if processing == "paper":
         return Processing.paper()
     if processing == "auto":
-        auto = getattr(Processing, "auto", None)
-        return auto(recordings, dofs) if auto else Processing()
+        return Processing.auto(recordings, dofs)
     if isinstance(processing, str):
         processing = json.loads(processing)
     if isinstance(processing, dict):
@@ -72,6 +73,8 @@ class Identification:
     baselines: dict[str, dict[str, float]] = field(default_factory=dict)
     processing: Processing | None = None
     notes: list[str] = field(default_factory=list)
+    approach_II_equation_error: dict[str, dict] = field(default_factory=dict)
+    best_cov: np.ndarray | None = None
 
     @property
     def names(self) -> list[str]:
@@ -90,6 +93,8 @@ class Identification:
             entry: dict[str, Any] = {
                 "approach_I": _stats(self.approach_I[p]),
                 "approach_II": {**_stats(self.approach_II[p]), "ess": self.approach_II[p].get("ess")},
+                **({"approach_II_equation_error": _stats(self.approach_II_equation_error[p])}
+                   if p in self.approach_II_equation_error else {}),
                 "approach_III": float(self.approach_III[k]),
                 "best": float(self.best[k]),
             }
@@ -98,7 +103,15 @@ class Identification:
                 entry["best_std"] = s
                 entry["best_ci95"] = [float(self.best[k] - 1.96 * s), float(self.best[k] + 1.96 * s)]
             params[p] = entry
-        return {"parameters": params, "metrics": self.metrics, "discriminator": self.discriminator,
+        corr: dict[str, Any] = {}
+        if len(self.samples_II) > 2:
+            corr["approach_II"] = np.corrcoef(self.samples_II, rowvar=False).tolist()
+        if self.best_cov is not None:
+            s = np.sqrt(np.clip(np.diag(self.best_cov), 1e-300, None))
+            corr["best"] = (self.best_cov / np.outer(s, s)).tolist()
+        return {"parameters": params, "correlation": {"names": self.names, **corr},
+                "validation": self.metrics.get("validation_test", {}),
+                "metrics": self.metrics, "discriminator": self.discriminator,
                 "timing_s": self.timing_s, "baselines": self.baselines,
                 "training": {"epochs": self.epochs, "converged_epoch": self.converged_epoch,
                              "n_ensemble": int(len(self.samples_II))},
@@ -174,7 +187,7 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
         if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
             # Gauss-Newton std, inflated for the correlation of filtered residuals
-            best, best_std = res.theta, res.std * max(1.0, float(res.ci_inflation))
+            best, best_std = res.theta, res.std  # block-bootstrap (sandwich) std
             oe, refined = float(c_ref[1]), True
             if res.force_scale is not None:
                 note = ("best: fitted force scale per training record "
@@ -200,6 +213,10 @@ class Siva:
     n_samples: Approach I sample count (paper: 1000).
     n_candidates: at most this many Approach II samples are simulated for Approach III.
     refine: run the output-error refinement that gives ``best``.
+    fit_target: "output" (default of the fast preset): after the paper's equation-error
+        training, SIVA continues on the output error through the processing chain
+        (unbiased on measured data; Approach II from that phase); "equation": the paper's
+        equation error only (the paper preset's default).
     baselines: also fit plain least squares and SINDy (pysindy) on the same states.
     """
 
@@ -207,7 +224,7 @@ class Siva:
                  settings: SivaSettings | None = None, preset: str = "fast", seed: int = 42,
                  max_epochs: int | None = None, n_samples: int = 1000, n_candidates: int = 600,
                  refine: bool = True, baselines: bool = True, progress: Progress | None = _stderr,
-                 progress_every: int = 25) -> None:
+                 progress_every: int = 25, fit_target: str | None = None) -> None:
         self.structure = structure
         self.processing = processing
         self.settings = settings
@@ -220,6 +237,7 @@ class Siva:
         self.baselines = baselines
         self.progress = progress
         self.progress_every = progress_every
+        self.fit_target = fit_target
 
     def _say(self, msg: str) -> None:
         if self.progress:
@@ -232,6 +250,10 @@ class Siva:
         kw: dict[str, Any] = {"seed": self.seed}
         if self.max_epochs is not None:
             kw["max_epochs"] = self.max_epochs
+        if self.fit_target is not None:
+            if self.fit_target not in ("output", "equation"):
+                raise ValueError(f"fit_target must be 'output' or 'equation', got {self.fit_target!r}")
+            kw["fit_target"] = self.fit_target
         return make(**kw)
 
     def fit(self, train: Sequence[Recording], val: Sequence[Recording]) -> "Siva":
@@ -252,11 +274,12 @@ class Siva:
         trainer = SivaTrainer(st, settings)
         trainer.set_data(self.train_states_, self.val_states_)
         t0 = time.perf_counter()
+        eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
         while trainer.epoch < settings.max_epochs:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(names, log.theta))
-                self._say(f"epoch {log.epoch:4d}  D={log.loss_d:.4f} (ln4=1.3863)  "
+                self._say(f"{eta.text(log.epoch + 1)}  D={log.loss_d:.4f} (ln4=1.3863)  "
                           f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
                           f"{'converged ' if log.converged else ''}{rel}")
             if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
@@ -270,6 +293,26 @@ class Siva:
         self._say(f"training: {trainer.epoch} epochs in {timing['training']:.1f} s, "
                   f"converged at epoch {trainer.monitor.converged_at}")
 
+        # --- Approach II of the equation-error phase, then Approach III over it (one
+        # batched simulation of the candidates) and ``best``: the output-error refinement
+        # from it (shared with the service: ``recommend_best``)
+        samples_ee = (trainer.ensemble.samples if len(trainer.ensemble)
+                      else np.array(trainer.history["theta"][-settings.ensemble_epochs:]))
+        rec = recommend_best(st, samples_ee[-self.n_candidates:], train, proc, refine=self.refine)
+        theta_III, best, best_std = rec.theta_III, rec.theta, rec.std
+        self.refine_ = rec.refine_result
+        if rec.note:
+            notes.append(rec.note)
+        timing["approach_III"] = rec.timing_s["approach_III"]
+        timing["refine"] = rec.timing_s["refine"]
+        summ_ee = normal_summary(samples_ee, names)
+
+        # --- the output-error phase: SIVA judged on what was measured, through the chain
+        if settings.fit_target == "output":
+            t0 = time.perf_counter()
+            self._output_error_phase(trainer, settings, best, train, val, proc, notes)
+            timing["training_output_error"] = time.perf_counter() - t0
+
         # --- Approach I and II
         t0 = time.perf_counter()
         samples_I = trainer.sample(self.n_samples)
@@ -278,18 +321,18 @@ class Siva:
         else:
             samples_II = np.array(trainer.history["theta"][-settings.ensemble_epochs:])
         summ_I = normal_summary(samples_I, names, ess=False)
-        summ_II = normal_summary(samples_II, names)
+        summ_II = normal_summary(samples_II, names, floor_rel=NUMERICAL_REL_STD)
         timing["approach_I_II"] = time.perf_counter() - t0
+        if settings.fit_target == "output":
+            # Approach III over the output-error ensemble (the paper's rule, its candidates)
+            from .refine import displacement_mse
 
-        # --- Approach III (one batched simulation of the candidates), then ``best``: the
-        # output-error refinement from it (shared with the service: ``recommend_best``)
-        rec = recommend_best(st, samples_II[-self.n_candidates:], train, proc, refine=self.refine)
-        theta_III, best, best_std = rec.theta_III, rec.theta, rec.std
-        self.refine_ = rec.refine_result
-        if rec.note:
-            notes.append(rec.note)
-        timing["approach_III"] = rec.timing_s["approach_III"]
-        timing["refine"] = rec.timing_s["refine"]
+            t0 = time.perf_counter()
+            cand = samples_II[-self.n_candidates:]
+            mse = displacement_mse(st, cand, train, proc)
+            if np.isfinite(mse).any():
+                theta_III = cand[int(np.nanargmin(mse))].copy()
+            timing["approach_III"] += time.perf_counter() - t0
 
         # --- metrics on training and (held-out) validation records
         t0 = time.perf_counter()
@@ -304,13 +347,54 @@ class Siva:
                 except KeyError:
                     pass
         metrics = self._metrics(ests, train, val, proc)
+        if val:
+            from .validation import validation_score
+
+            metrics["validation_test"] = {}
+            for key in ("approach_II", "best"):
+                try:
+                    metrics["validation_test"][key] = validation_score(st, ests[key], val, proc)
+                except ValueError as exc:
+                    metrics["validation_test"][key] = {"error": str(exc)}
         timing["metrics"] = time.perf_counter() - t0
         timing["total"] = time.perf_counter() - t_all
         self.result_ = Identification(
             st, summ_I, summ_II, theta_III, best, best_std, samples_I, samples_II,
             trainer.history, trainer.monitor.converged_at, trainer.epoch,
-            trainer.discriminator_scores(), metrics, timing, baselines, proc, notes)
+            trainer.discriminator_scores(), metrics, timing, baselines, proc, notes, summ_ee,
+            None if rec.std is None or rec.refine_result is None else rec.refine_result.cov)
         return self
+
+    def _output_error_phase(self, trainer: SivaTrainer, settings: SivaSettings,
+                            anchor: np.ndarray, train: Sequence[Recording],
+                            val: Sequence[Recording], proc: Processing, notes: list[str]) -> None:
+        """Continue training on the output error linearised at ``anchor`` until converged,
+        then harvest the Approach II ensemble (see linearized.py)."""
+        from .linearized import linearize
+
+        st = self.structure
+        try:
+            lin_tr = linearize(st, anchor, train, proc, n_noise=settings.oe_noise,
+                               seed=settings.seed)
+            lin_va = linearize(st, anchor, val, proc) if val else None
+        except ValueError as exc:
+            notes.append(f"output-error phase skipped ({exc}); Approach II is equation error")
+            return
+        trainer.use_output_error(lin_tr, lin_va)
+        start = trainer.epoch
+        limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
+                            settings.max_epochs // 2) + settings.ensemble_epochs
+        eta = Eta(limit, start=start)  # an upper bound again
+        while trainer.epoch < limit:
+            log = trainer.run_epoch()
+            if self.progress and (log.epoch % self.progress_every == 0):
+                rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
+                self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
+                          f"fit={log.loss_mse:.3e}  {'converged ' if log.converged else ''}{rel}")
+            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+                break
+        if not trainer.converged:
+            notes.append("output-error phase not converged: Approach II uses its last epochs")
 
     def _baselines(self, timing: dict[str, float]) -> dict[str, dict[str, float]]:
         from . import baselines as bl

@@ -12,6 +12,8 @@
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
 #: complex Morlet wavelet: bandwidth 1.5, centre frequency 1.0 (time/frequency balance
@@ -44,10 +46,14 @@ def fourier_amplitude(x: np.ndarray, fs: float, *, detrend: bool = True
 
 
 def frequency_band(x: np.ndarray, fs: float, *, energy: float = 0.995, margin: float = 1.5,
-                   fmin_fraction: float = 0.1) -> tuple[float, float]:
+                   fmin_fraction: float = 0.1, include: Sequence[float] = ()) -> tuple[float, float]:
     """(fmin, fmax) in Hz covering ``energy`` of the spectral energy of ``x`` (any shape,
     time on axis 0), widened by ``margin`` and capped at Nyquist.  fmin is a fraction of the
-    dominant frequency, floored at two cycles over the record (lower is not resolvable)."""
+    dominant frequency, floored at two cycles over the record (lower is not resolvable).
+
+    ``include``: frequencies that must be inside the band (e.g. the model's natural
+    frequencies): a displacement's energy sits in its lowest mode, so an energy criterion
+    alone cuts a weak higher mode off the axis (the 37 N LO-NO record's 19.8 Hz mode)."""
     f, amp = fourier_amplitude(np.asarray(x, dtype=float).reshape(len(x), -1), fs)
     p = (amp ** 2).sum(axis=1)
     nyq = fs / 2.0
@@ -57,6 +63,9 @@ def frequency_band(x: np.ndarray, fs: float, *, energy: float = 0.995, margin: f
     c = np.cumsum(p[1:]) / p[1:].sum()
     f_hi = float(f[1:][min(int(np.searchsorted(c, energy)), len(c) - 1)])
     fmax = min(nyq, max(margin * f_hi, 4 * lowest))
+    extra = [float(f) for f in include if f is not None and np.isfinite(f) and f > 0]
+    if extra:
+        fmax = min(nyq, max(fmax, 1.25 * max(extra)))
     f_peak = float(f[1:][int(np.argmax(p[1:]))])
     fmin = max(lowest, fmin_fraction * f_peak)
     if fmin >= fmax:

@@ -289,6 +289,17 @@ class Structure:
             raise KeyError(f"missing values for parameters {missing}")
         return np.array([float(values[p]) for p in self.free])
 
+    def parameter_units(self) -> dict[str, str]:
+        """{parameter: SI unit} from the element kinds (a parameter shared by elements of
+        different units lists each, joined by " or "; "" when no kind says)."""
+        units: dict[str, list[str]] = {p: [] for p in self.parameters}
+        for el in self.elements:
+            for c, p in zip(el.kind.coefficients, el.params):
+                u = el.kind.units.get(c, "") if hasattr(el.kind, "units") else ""
+                if u and p in units and u not in units[p]:
+                    units[p].append(u)
+        return {p: " or ".join(u) for p, u in units.items() if not p.startswith("_fixed_")}
+
     def linear_parameters(self) -> list[str]:
         """Free parameters that enter the equations linearly wherever they appear."""
         lin = {p: True for p in self.free}
@@ -297,6 +308,29 @@ class Structure:
                 if p in lin and c not in el.kind.linear:
                     lin[p] = False
         return [p for p, ok in lin.items() if ok]
+
+    # ---------------------------------------------------------------- force inputs
+    def force_gain(self, dof: str) -> str | float:
+        """Gain G of the measured force on ``dof`` (paper eq. 1: M a = -f + G F): a
+        parameter name (identified, e.g. an unknown shaker calibration) or a number (1 when
+        the spec says nothing).  The one place that knows the default."""
+        return self.force_gains.get(dof, 1.0)
+
+    def gain_values(self, values: Mapping[str, Any]) -> list[Any]:
+        """Per DOF, the gain's value given ``full_values`` (arrays over the sets, torch or
+        numpy, or plain numbers for fixed gains)."""
+        out = []
+        for d in self.dofs:
+            g = self.force_gain(d)
+            out.append(values[g] if isinstance(g, str) else g)
+        return out
+
+    def gains(self, theta: Any) -> np.ndarray:
+        """(..., n_dof) numeric force gains for parameter sets ``theta`` (..., n_free)."""
+        theta = np.asarray(theta, dtype=float)
+        cols = self.gain_values(self.full_values(theta))
+        return np.stack([np.broadcast_to(np.asarray(g, dtype=float), theta.shape[:-1])
+                         for g in cols], axis=-1)
 
     # ---------------------------------------------------------------- physics
     def element_forces(self, theta: Any, q: Any, v: Any) -> list[Any]:
@@ -325,9 +359,7 @@ class Structure:
             if el.j >= 0:
                 cols[el.j] = cols[el.j] + fe
         if f is not None:
-            for k, d in enumerate(self.dofs):
-                gain = self.force_gains.get(d, 1.0)
-                g = values[gain] if isinstance(gain, str) else gain
+            for k, g in enumerate(self.gain_values(values)):
                 cols[k] = cols[k] + g * f[..., k]
         like = q[..., 0]
         stacked = []

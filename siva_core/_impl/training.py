@@ -37,6 +37,7 @@ import torch.nn.functional as F
 
 from .convergence import ConvergenceMonitor
 from .ensemble import Ensemble
+from .linearized import Linearization
 from .networks import LN4, Discriminator, ParameterGenerator
 from .processing import States
 from .structure import Structure
@@ -65,12 +66,20 @@ class SivaSettings:
     conv_min_epochs: int = 40
     steps_per_epoch: int | None = None  # None: ceil(N_train / batch_size)
     threads: int = 1
+    # output-error phase (``use_output_error``): see linearized.py and docs/method.md
+    fit_target: str = "output"  # "output": equation error, then the output-error phase;
+    #                             "equation": the paper's equation error only
+    oe_lr: float = 0.05          # generator/discriminator step in the output-error phase
+    oe_steps: int = 25           # steps per epoch in that phase
+    oe_batch: int = 64           # parameter sets (and validation samples) per step
+    oe_min_epochs: int = 30      # epochs before its convergence is judged
+    oe_noise: int = 64           # parametric-bootstrap replicates drawn from per epoch
 
     @classmethod
     def paper(cls, **kw: Any) -> "SivaSettings":
         """The paper: Adam 1e-4, batch 300, seed 42, 1000 epochs, Approach II from epoch 400."""
         base = dict(batch_size=300, lr=1e-4, seed=42, max_epochs=1000, ensemble_epochs=600,
-                    conv_min_epochs=400)
+                    conv_min_epochs=400, fit_target="equation")
         base.update(kw)
         return cls(**base)
 
@@ -158,6 +167,68 @@ class _Batch:
         return structure.accelerations(theta, self.q, self.v, self.f)
 
 
+class _ValidationSurrogate:
+    """D's view of the validation records in the output-error phase: real = the processed
+    measured quantities, fake = the linearised processed simulation at the generator's x,
+    both next to the measured processed state (as in the equation-error phase)."""
+
+    def __init__(self, lin: Linearization) -> None:
+        ys, r0s, js, qs, vs = [], [], [], [], []
+        n = lin.J.shape[1]
+        for k, ser in enumerate(lin.series):
+            sl = slice(ser.start, ser.start + ser.T * ser.width)
+            w = lin.weight[k]
+            ys.append(lin.targets[k])
+            r0s.append(lin.r[sl].reshape(ser.T, ser.width) / w)
+            js.append(lin.J[sl].reshape(ser.T, ser.width, n) / w[None, :, None])
+            qs.append(lin.states[k].q)
+            vs.append(lin.states[k].v)
+        cat = lambda xs: torch.from_numpy(np.ascontiguousarray(np.concatenate(xs)))
+        self.y, self.r0, self.J, self.q, self.v = (cat(x) for x in (ys, r0s, js, qs, vs))
+        rms = lambda x: x.pow(2).mean(0).sqrt().clamp_min(1e-12)
+        self.sy, self.sq, self.sv = rms(self.y), rms(self.q), rms(self.v)
+        self.n = self.y.shape[0]
+        self.names = [r.name for r in lin.records]
+        edges = np.cumsum([0] + [ser.T for ser in lin.series])
+        self.bounds = list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+
+    def features(self, idx: torch.Tensor, x: torch.Tensor | None) -> torch.Tensor:
+        y = self.y[idx]
+        if x is not None:
+            y = y + self.r0[idx] + (self.J[idx] * x[:, None, :]).sum(-1)
+        return torch.cat([self.q[idx] / self.sq, self.v[idx] / self.sv, y / self.sy], -1).float()
+
+
+@dataclass
+class _OutputErrorPhase:
+    lin: Linearization
+    A: torch.Tensor          # J^T J
+    Jt: torch.Tensor         # J^T
+    g0: torch.Tensor         # J^T r
+    s2: float                # residual variance per row at the anchor (chi^2 scale)
+    noise: torch.Tensor | None
+    val: _ValidationSurrogate | None
+    start_epoch: int
+    is_log: torch.Tensor
+    theta: torch.Tensor
+    scale: torch.Tensor
+
+    @classmethod
+    def of(cls, train: Linearization, val: Linearization | None, epoch: int) -> "_OutputErrorPhase":
+        J = torch.from_numpy(train.J)
+        r = torch.from_numpy(train.r)
+        dof = max(1, train.r.size - train.J.shape[1])
+        noise = torch.from_numpy(train.noise) if train.noise.size else None
+        return cls(train, J.T @ J, J.T.contiguous(), J.T @ r, max(train.cost / dof, 1e-300),
+                   noise, _ValidationSurrogate(val) if val is not None else None, epoch,
+                   torch.from_numpy(train.is_log), torch.from_numpy(train.theta),
+                   torch.from_numpy(train.scale))
+
+    def to_x(self, theta: torch.Tensor) -> torch.Tensor:
+        ratio = (theta / self.theta).clamp_min(1e-12)
+        return torch.where(self.is_log, torch.log(ratio), (theta - self.theta) / self.scale)
+
+
 class SivaTrainer:
     """The SIVA adversarial loop, resumable and warm-startable (``set_data`` any time)."""
 
@@ -187,6 +258,7 @@ class SivaTrainer:
         self.train: _Pool | None = None
         self.val: _Pool | None = None
         self._scale: dict[str, torch.Tensor] = {}
+        self.oe: _OutputErrorPhase | None = None
 
     # ------------------------------------------------------------------ data
     def set_data(self, train: Sequence[States], val: Sequence[States]) -> None:
@@ -232,6 +304,14 @@ class SivaTrainer:
     # ------------------------------------------------------------------ training
     def run_epoch(self) -> EpochLog:
         """One epoch of alternating D and P updates (paper eqs. 2 and 4)."""
+        # numba's OpenMP layer (the batched simulation) resets the OpenMP thread count of
+        # the calling thread; tiny torch ops then wait on a second spinning thread (a
+        # 64-sample BCE took 5 ms instead of 7 us): restore ours before every epoch
+        want = max(1, self.settings.threads)
+        if torch.get_num_threads() != want:
+            torch.set_num_threads(want)
+        if self.oe is not None:
+            return self._run_epoch_output_error()
         if self.train is None:
             raise RuntimeError("set_data() first")
         s = self.settings
@@ -281,6 +361,80 @@ class SivaTrainer:
             self._set_lr(s.lr_converged)
         return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
 
+    # ------------------------------------------------------------------ output-error phase
+    def use_output_error(self, train: Linearization, val: Linearization | None = None) -> None:
+        """Judge the generator from now on by the output error linearised at ``train.theta``
+        (chain-consistent: see linearized.py).  The generator switches to local coordinates
+        around the anchor (one unit = one standard error), the convergence monitor and the
+        Approach II ensemble restart (equation-error samples are biased), and each epoch
+        fits the anchor's residuals plus one parametric-bootstrap noise replicate."""
+        s = self.settings
+        step = train.step_matrix()
+        self.generator.set_local(torch.from_numpy(train.theta), torch.from_numpy(step),
+                                 torch.from_numpy(train.is_log))
+        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=s.oe_lr, foreach=True)
+        self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=s.oe_lr, foreach=True)
+        self.oe = _OutputErrorPhase.of(train, val, self.epoch)
+        self.monitor = ConvergenceMonitor(window=s.conv_window, rel_tol=s.conv_rel_tol,
+                                          min_epochs=self.epoch + s.oe_min_epochs)
+        self.ensemble.reset()
+        self.oe_targets_: list[np.ndarray] = []
+
+    def _run_epoch_output_error(self) -> EpochLog:
+        s = self.settings
+        ph = self.oe
+        assert ph is not None
+        B = s.oe_batch
+        harvesting = self.monitor.converged
+        e = None
+        if harvesting and ph.noise is not None and len(ph.noise):
+            e = ph.noise[int(torch.randint(0, len(ph.noise), (1,), generator=self.rng))]
+        g = ph.g0 if e is None else ph.g0 + ph.Jt @ e
+        sums = np.zeros(3)
+        theta = None
+        for _ in range(s.oe_steps):
+            theta = self.generator(self._noise(B))
+            x = ph.to_x(theta)
+            # chi^2-scaled: one standard error away from the epoch's optimum costs ~1
+            loss_fit = (((x @ ph.A) * x).sum(-1) + 2 * (x @ g)).mean() / ph.s2
+            loss_d = torch.zeros(())
+            loss_adv = torch.zeros(())
+            if ph.val is not None:
+                idx = torch.randint(0, ph.val.n, (B,), generator=self.rng)
+                real = ph.val.features(idx, None)
+                fake = ph.val.features(idx, x)
+                real_logit = self.discriminator(real)
+                fake_logit = self.discriminator(fake.detach())
+                loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
+                          + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+                self.opt_d.zero_grad(set_to_none=True)
+                loss_d.backward()
+                self.opt_d.step()
+                logit = self.discriminator(fake)
+                loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+            loss_p = loss_adv + s.gamma * loss_fit
+            self.opt_g.zero_grad(set_to_none=True)
+            loss_p.backward()
+            self.opt_g.step()
+            sums += (loss_d.item(), loss_adv.item(), loss_fit.item())
+        sums /= s.oe_steps
+        theta_epoch = theta.detach().mean(0).numpy()
+        # the epoch's own optimum (closed form), to measure how well the generator tracks it
+        target = -np.linalg.solve(ph.A.numpy(), g.numpy())
+        e_ = self.epoch
+        self.epoch += 1
+        h = self.history
+        h["loss_d"].append(float(sums[0]))
+        h["loss_adv"].append(float(sums[1]))
+        h["loss_mse"].append(float(sums[2]))
+        h["theta"].append(theta_epoch)
+        was = self.monitor.converged
+        conv = self.monitor.update(e_, theta_epoch)
+        if conv and was and e_ > self.monitor.converged_at + s.ensemble_burn_in:
+            self.ensemble.add(theta_epoch, e_)
+            self.oe_targets_.append(ph.lin.to_theta(target))
+        return EpochLog(e_, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
     def _set_lr(self, lr: float) -> None:
         for opt in (self.opt_g, self.opt_d):
             for group in opt.param_groups:
@@ -300,7 +454,10 @@ class SivaTrainer:
 
     @torch.no_grad()
     def discriminator_scores(self, n_eval: int = 2000) -> dict[str, Any]:
-        """D on each validation record: mean D(real), D(fake) and the BCE loss vs ln 4."""
+        """D on each validation record: mean D(real), D(fake) and the BCE loss vs ln 4
+        (plus, in the output-error phase, D's AUC separating real from simulated)."""
+        if self.oe is not None:
+            return self._discriminator_scores_output_error(n_eval)
         pool = self.val if self.val is not None else self.train
         if pool is None:
             return {}
@@ -335,10 +492,45 @@ class SivaTrainer:
                 "history": {k: [np.asarray(x).tolist() for x in v] for k, v in self.history.items()},
                 "initial_guess": getattr(self, "initial_guess_", {})})
 
+    @torch.no_grad()
+    def _discriminator_scores_output_error(self, n_eval: int) -> dict[str, Any]:
+        ph = self.oe
+        assert ph is not None
+        if ph.val is None:
+            return {}
+        theta = torch.from_numpy(self.sample(256, seed=self.settings.seed + 1).mean(0))
+        x = ph.to_x(theta[None])
+        records: dict[str, dict[str, float]] = {}
+        prs, pfs = [], []
+        for name, (i0, i1) in zip(ph.val.names, ph.val.bounds):
+            idx = torch.arange(i0, i1, max(1, (i1 - i0) // n_eval))
+            pr = self.discriminator.prob(ph.val.features(idx, None)).clamp(1e-7, 1 - 1e-7)
+            pf = self.discriminator.prob(ph.val.features(idx, x.expand(len(idx), -1))
+                                         ).clamp(1e-7, 1 - 1e-7)
+            records[name] = {"d_real": float(pr.mean()), "d_fake": float(pf.mean()),
+                             "loss_d": float(-pr.log().mean() - (1 - pf).log().mean())}
+            prs.append(pr)
+            pfs.append(pf)
+        pr, pf = torch.cat(prs), torch.cat(pfs)
+        loss_d = float(-pr.log().mean() - (1 - pf).log().mean())
+        # AUC = P(D(real) > D(fake)) (Mann-Whitney): 0.5 = indistinguishable
+        both = torch.cat([pr, pf]).numpy()
+        ranks = np.argsort(np.argsort(both)) + 1.0
+        n1 = len(pr)
+        auc = float((ranks[:n1].sum() - n1 * (n1 + 1) / 2) / (n1 * len(pf)))
+        return {"loss_d": loss_d, "ln4": LN4, "ln4_distance": abs(loss_d - LN4),
+                "d_real": float(pr.mean()), "d_fake": float(pf.mean()), "auc": auc,
+                "target": "output", "records": records}
+
     def load_state_dict(self, d: dict[str, Any]) -> None:
         self.epoch = d["epoch"]
         self.initialised = d["initialised"]
-        self.generator.load_state_dict(d["generator"])
+        gen = d["generator"]
+        if gen.get("anchor") is not None and gen["anchor"].numel() > 0:
+            # saved in local coordinates: size the buffers before loading them
+            n = self.generator.n_params
+            self.generator.set_local(torch.zeros(n), torch.eye(n), torch.zeros(n, dtype=torch.bool))
+        self.generator.load_state_dict(gen)
         self.discriminator.load_state_dict(d["discriminator"])
         self.opt_g.load_state_dict(d["opt_g"])
         self.opt_d.load_state_dict(d["opt_d"])

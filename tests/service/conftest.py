@@ -1,4 +1,4 @@
-"""Fixtures that run the REAL service: `python -m siva_core.cli serve` on a free port.
+"""Fixtures that run the REAL service: `python -m siva_cli serve` on a free port.
 
 A subprocess (not an in-process TestClient) so the tests exercise uvicorn, the CLI, the
 lifespan and the worker threads exactly as deployed, and so a test can kill -9 it.
@@ -22,7 +22,7 @@ import pytest
 from synthetic import free_decay
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED_DATA = REPO.parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("SIVA_SHARED_DATA") or REPO.parent / "shared" / "data")
 DUFFING = SHARED_DATA / "duffing"
 MODELS = REPO / "examples" / "models"
 
@@ -96,7 +96,7 @@ class Server:
         self.logs.append(self.log_path)
         self._fh = open(self.log_path, "wb")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "siva_core.cli", "serve", "--host", "127.0.0.1",
+            [sys.executable, "-m", "siva_cli", "serve", "--host", "127.0.0.1",
              "--port", str(self.port), "--data-dir", str(self.data_dir)],
             cwd=REPO, env=self.env, stdout=self._fh, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + timeout

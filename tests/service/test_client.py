@@ -12,8 +12,11 @@ import httpx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-DUFFING = ROOT.parent / "shared" / "data" / "duffing"
+DUFFING = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
+from tests.conftest import find_shared_data  # noqa: E402
+
+DUFFING = (find_shared_data() or ROOT.parent / "shared" / "data") / "duffing"
 
 from clients import SivaClient, SivaClientError  # noqa: E402
 from clients.cli import main as cli_main  # noqa: E402
@@ -191,15 +194,25 @@ def test_cli_commands(server: str, tmp_path: Path, capsys: pytest.CaptureFixture
     assert len(json.loads(out)["recordings"]) == 3
     deadline = time.monotonic() + 120
     while True:
-        code, out, _ = _cli(["estimate", "cli"], capsys)
+        code, out, _ = _cli(["estimate", "cli", "--json"], capsys)
         if json.loads(out)["epoch"] >= 4:
             break
         assert time.monotonic() < deadline
         time.sleep(0.2)
-    code, out, _ = _cli(["drift", "cli", "--watch", "--interval", "0.1", "--count", "2"], capsys)
+    code, out, _ = _cli(["drift", "cli", "--watch", "--json", "--interval", "0.1", "--count", "2"],
+                        capsys)
     lines = [json.loads(x) for x in out.splitlines()]
     assert code == 0 and lines and all(x["event"] in ("estimate", "alarm") for x in lines)
     assert all(isinstance(v, (float, type(None))) for v in lines[0]["parameters"].values())
+    # human-readable: a table with units from the element kinds, 4 significant digits
+    code, out, _ = _cli(["estimate", "cli"], capsys)
+    assert code == 0 and "parameter" in out and "N/m³" in out and "95 % interval" in out
+    assert not out.lstrip().startswith("{")
+    code, out, _ = _cli(["drift", "cli", "--watch", "--interval", "0.1", "--count", "2"], capsys)
+    assert code == 0 and out.splitlines()[0].split()[:3] == ["epoch", "time", "converged"]
+    assert "k [N/m]" in out.splitlines()[0]
+    code, out, _ = _cli(["drift", "reset", "cli"], capsys)
+    assert code == 0 and json.loads(out)["alarms"] == []
     # errors: the server's detail on stderr, exit 1; a wrong token is a 401
     code, _, err = _cli(["estimate", "missing"], capsys)
     assert code == 1 and "404" in err and "does not exist" in err
@@ -240,13 +253,15 @@ def test_dockerfile_builds_what_the_repo_has() -> None:
     import tomllib
 
     steps = _dockerfile()
-    assert steps[0] == ("FROM", "python:3.11-slim")
+    assert steps[:2] == [("ARG", "BASE_IMAGE=python:3.11-slim"), ("FROM", "${BASE_IMAGE}")]
     args = dict(a.split("=", 1) for k, a in steps if k == "ARG")
+    assert "SIVA_REQUIRE_TOKEN=1" in next(a for k, a in steps if k == "ENV")
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert f"torch=={args['TORCH_VERSION']}" in pyproject["project"]["dependencies"]
     runs = [a for k, a in steps if k == "RUN"]
     torch_run = next(r for r in runs if "torch==" in r)
-    assert runs.index(torch_run) < next(i for i, r in enumerate(runs) if "pip install ." in r)
+    assert runs.index(torch_run) < next(i for i, r in enumerate(runs) if "pip install -c" in r
+                                        and " . " in r)
     assert "--index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
     for k, a in steps:
         if k == "COPY":
@@ -259,7 +274,7 @@ def test_dockerfile_builds_what_the_repo_has() -> None:
     cmd = json.loads(next(a for k, a in steps if k == "CMD"))
     assert cmd == ["siva", "serve", "--host", "0.0.0.0", "--data-dir", "/data"]
     assert "siva" in pyproject["project"]["scripts"]
-    from siva_core.cli import build_parser
+    from siva_cli import build_parser
 
     ns = build_parser().parse_args(cmd[1:])
     assert (ns.command, ns.host, ns.data_dir, ns.port) == ("serve", "0.0.0.0", "/data", 8000)
@@ -276,10 +291,96 @@ def test_compose_file() -> None:
     svc = doc["services"]["siva"]
     ctx = (DOCKER / svc["build"]["context"]).resolve()
     assert ctx == ROOT and (ctx / svc["build"]["dockerfile"]).is_file()
-    assert "8000:8000" in svc["ports"]
+    assert svc["ports"] == ["${SIVA_BIND:-127.0.0.1}:${SIVA_PORT:-8000}:8000"]  # localhost
+    assert "SIVA_REQUIRE_TOKEN=${SIVA_REQUIRE_TOKEN:-1}" in svc["environment"]
     vol, _, target = svc["volumes"][0].split()[0].partition(":")
     assert target == "/data" and vol in doc["volumes"]  # a named volume, not a bind mount
     assert "SIVA_API_TOKEN" in svc["environment"]  # passthrough (no value: taken from host)
     hc = svc["healthcheck"]["test"]
     assert hc[0] == "CMD" and any("/healthz" in part for part in hc)
     compile(hc[-1], "<healthcheck>", "exec")
+
+
+def test_docker_context_is_small_and_has_what_copy_needs() -> None:
+    """The files .dockerignore lets into the build context: every COPY source, < 20 MB."""
+    import fnmatch
+    import shlex
+
+    rules = [ln.strip() for ln in (ROOT / ".dockerignore").read_text().splitlines()
+             if ln.strip() and not ln.startswith("#")]
+
+    def included(rel: str) -> bool:
+        keep = False
+        for rule in rules:
+            neg = rule.startswith("!")
+            pat = rule.lstrip("!").rstrip("/")
+            hit = (fnmatch.fnmatch(rel, pat) or rel.startswith(pat + "/")
+                   or fnmatch.fnmatch(rel, pat.replace("**/", "*/")) or
+                   any(fnmatch.fnmatch(part, pat.replace("**/", "")) for part in rel.split("/")
+                       if pat.startswith("**/")))
+            if hit:
+                keep = neg
+        return keep
+
+    files = [p for p in ROOT.rglob("*") if p.is_file() and ".git" not in p.parts
+             and included(p.relative_to(ROOT).as_posix())]
+    size = sum(p.stat().st_size for p in files)
+    assert size < 20e6, size
+    assert not any(".venv" in p.parts or "__pycache__" in p.parts for p in files)
+    for k, a in _dockerfile():
+        if k == "COPY":
+            *sources, _dest = shlex.split(a)
+            for src in sources:
+                assert any(p.relative_to(ROOT).as_posix().startswith(src.rstrip("/"))
+                           for p in files), f"COPY {src}: excluded by .dockerignore"
+
+
+def test_upload_folder_skips_what_is_not_a_recording(server: str, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SIVA_URL", server)
+    monkeypatch.setenv("SIVA_API_TOKEN", TOKEN)
+    assert _cli(["register", "skips", str(SPEC)], capsys)[0] == 0
+    (tmp_path / "a.csv").write_bytes(small("train_v5.csv"))
+    (tmp_path / "b_notes.csv").write_text("this is not a recording\n")
+    (tmp_path / "photo.jpg").write_bytes(b"\xff\xd8\xff")
+    (tmp_path / "val_c.csv").write_bytes(small("val_v3.csv"))
+    code, out, err = _cli(["upload-folder", "skips", str(tmp_path)], capsys)
+    assert code == 0, err
+    assert [Path(a["path"]).name for a in json.loads(out)] == ["a.csv", "val_c.csv"]
+    assert "warning: skipping" in err and "photo.jpg" in err and "b_notes.csv" in err
+    # delete: asks (no tty here: refused without --yes), then deletes
+    code, _, err = _cli(["delete", "skips"], capsys)
+    assert code == 2 and "--yes" in err
+    code, out, _ = _cli(["delete", "skips", "--yes"], capsys)
+    assert code == 0 and json.loads(out) == {"deleted": "skips"}
+    code, _, err = _cli(["estimate", "skips"], capsys)
+    assert code == 1 and "404" in err
+
+
+def test_client_content_types_cover_the_server_formats() -> None:
+    from clients.client import CONTENT_TYPES
+    from siva_core import RECORDING_FORMATS as REGISTRY
+    from siva_core import media_types
+
+    served = media_types()
+    for fmt in REGISTRY.values():
+        for suffix in fmt.suffixes:
+            media = CONTENT_TYPES[suffix.lstrip(".")]
+            assert served[media] == fmt.name or (fmt.name == "csv" and media == "text/csv")
+
+
+def test_render_numbers_and_units() -> None:
+    from clients import render
+
+    spec = _toml(ROOT / "examples" / "models" / "lono.toml")
+    units = render.parameter_units(spec)
+    assert units["k1"] == "N/m" and units["b1"] == "N·s/m" and units["beta"] == "–"
+    assert [render.num(x) for x in (3e8, 0.000123456, 12.3456789, None, 0)] == \
+        ["3.000e+08", "1.235e-04", "12.35", "–", "0"]
+    text = render.render_estimate("lono", {
+        "parameters": {"k1": {"mean": 1234.5678, "std": 1.23456, "ci95": [1232.1, 1237.0]}},
+        "epoch": 7, "converged": True, "n_recordings": {"train": 2, "validation": 1},
+        "modal": {"frequency_hz": [19.83], "damping_ratio": [0.0123]}}, units)
+    assert "1235" in text and "[1232, 1237]" in text and "N/m" in text
+    assert "19.83 Hz (ζ 1.23 %)" in text and "epoch 7" in text

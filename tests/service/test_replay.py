@@ -23,7 +23,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "tests" / "fixtures"
-DATA = ROOT.parent / "shared" / "data" / "duffing"
+DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
 
 from service.mcap_log import (TOPIC_DATASET, TOPIC_SNAPSHOT, EventLog, is_finished,  # noqa: E402
@@ -99,7 +99,7 @@ def crash_and_resume(data_dir: Path, out: Path) -> tuple[Path, Path]:
     port = _free_port()
     env = {**os.environ, "SIVA_SNAPSHOT_EVERY": "5", "SIVA_CHECKPOINT_EVERY_S": "1",
            "SIVA_LOG_LEVEL": "WARNING", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "siva_core.cli", "serve", "--port", str(port),
+    proc = subprocess.Popen([sys.executable, "-m", "siva_cli", "serve", "--port", str(port),
                              "--data-dir", str(data_dir)], env=env, cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -213,7 +213,7 @@ def test_live_service_run_replays_exactly(tmp_path: Path) -> None:
 
 
 def test_cli_writes_the_estimate(tmp_path: Path) -> None:
-    from siva_core.cli import main
+    from siva_cli import main
 
     out = tmp_path / "est.json"
     assert main(["replay", str(FIX / "duffing_run.mcap"), "--out", str(out)]) == 0

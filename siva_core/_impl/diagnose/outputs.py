@@ -59,23 +59,17 @@ class _Outputs:
         """Record ``k`` simulated at one theta (optionally driven by another force) and
         processed the way ``refine`` does it (same interpolation, chain and substeps).
         Returns (processed states or None if diverged, the raw full-rate Simulation)."""
-        from ..simulate import simulate, simulated_recording
+        from ..simulate import simulate
 
         r = self.records[k]
         f = r.force if force is None else force
-        kw: dict[str, Any] = {}
-        if hasattr(self.prob, "interp"):
-            kw["interp"] = self.prob.interp
         sim = simulate(self.structure, np.asarray(theta, float), r.rec.time, r.q0, r.v0, f,
-                       substeps=r.substeps, backend=self.prob.backend, **kw)
+                       substeps=r.substeps, backend=self.prob.backend, interp=self.prob.interp)
         if not (np.all(np.isfinite(sim.q)) and np.all(np.isfinite(sim.v))
                 and np.all(np.isfinite(sim.a))):
             return None, sim
-        chain = getattr(self.prob, "chain", self.proc)
-        if hasattr(chain, "apply_simulated"):
-            return chain.apply_simulated(r.rec, self.structure.dofs, sim.q, sim.v, sim.a), sim
-        srec = simulated_recording(r.rec, self.structure, sim.q, sim.v, sim.a)
-        return chain.apply(srec, self.structure.dofs), sim
+        chain = self.prob.chain
+        return chain.apply_simulated(r.rec, self.structure.dofs, sim.q, sim.v, sim.a), sim
 
     def output(self, st: States, k: int) -> np.ndarray:
         """Normalised compared quantities (T', n_dof) of processed simulated states."""
@@ -128,9 +122,4 @@ def _relative(q: np.ndarray, v: np.ndarray, loc: Location) -> tuple[np.ndarray, 
 
 
 def _gain_values(structure: Structure, theta: np.ndarray) -> np.ndarray:
-    values = structure.full_values(np.asarray(theta, float))
-    g = np.ones(structure.n_dof)
-    for k, d in enumerate(structure.dofs):
-        gain = structure.force_gains.get(d, 1.0)
-        g[k] = float(values[gain]) if isinstance(gain, str) else float(gain)
-    return g
+    return structure.gains(theta)

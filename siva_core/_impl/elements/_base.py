@@ -30,7 +30,9 @@ class ElementKind:
     (use :func:`xp_of` for functions such as ``tanh``).  ``expr`` is the same law as a
     scalar Python expression in ``d``, ``dv``, the coefficient names and ``abs``/``tanh``/
     ``copysign``; it lets the batched simulator compile the model.  ``linear`` names the
-    coefficients that enter f linearly (used by least-squares initialisation).
+    coefficients that enter f linearly (used by least-squares initialisation).  ``units``
+    gives each coefficient's SI unit (displacement in m, velocity in m/s, force in N), shown
+    next to every value in reports and the dashboard.
     """
 
     name: str
@@ -39,6 +41,11 @@ class ElementKind:
     expr: str | None = None
     linear: frozenset[str] = field(default_factory=frozenset)
     doc: str = ""
+    units: dict[str, str] = field(default_factory=dict)
+
+    def unit(self, coefficient: str) -> str:
+        """SI unit of a coefficient ("" when the kind does not say)."""
+        return self.units.get(coefficient, "")
 
 
 REGISTRY: dict[str, ElementKind] = {}

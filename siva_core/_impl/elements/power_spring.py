@@ -12,4 +12,4 @@ def _force(d, dv, alpha, beta):
 POWER_SPRING = register_element(ElementKind(
     name="power_spring", coefficients=("alpha", "beta"), force=_force,
     expr="alpha * d * (abs(d) + 1e-300) ** beta", linear=frozenset({"alpha"}),
-    doc="f = alpha*d*|d|^beta"))
+    doc="f = alpha*d*|d|^beta", units={"alpha": "N/m^(1+beta)", "beta": "-"}))

@@ -1,0 +1,398 @@
+/* siva live dashboard: polls the public API and draws with the vendored uPlot.
+ *
+ * Defensive by design: the estimate and drift payloads are evolving, so every panel reads
+ * what it needs with fallbacks and says "not yet available" when a key is missing, rather
+ * than throwing (a thrown error would stop the polling loop for every panel).
+ */
+"use strict";
+
+const POLL_MS = 3000;          // fleet, estimate, drift
+const LATEST_EVERY = 3;        // latest-record every 3rd poll (the server caches it anyway)
+const COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2"];
+
+const state = { selected: null, tick: 0, plots: {}, diagnosisPath: null, openapiChecked: false };
+
+// ------------------------------------------------------------------ helpers
+function el(tag, attrs, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (k === "class") e.className = v; else if (k === "text") e.textContent = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+  }
+  for (const c of children) if (c != null) e.append(c);
+  return e;
+}
+function na(text) { return el("div", { class: "na", text: text || "not yet available" }); }
+function fmt(x, digits) {
+  if (x === null || x === undefined || typeof x !== "number" || !isFinite(x)) return "–";
+  const d = digits || 5;
+  const a = Math.abs(x);
+  return (a !== 0 && (a < 1e-3 || a >= 1e6)) ? x.toExponential(d - 1) : String(Number(x.toPrecision(d)));
+}
+function isoOf(t) {
+  return typeof t === "number" ? new Date(t * 1000).toISOString().replace(/\.\d+Z$/, "Z") : "–";
+}
+async function getJSON(path) {
+  const r = await fetch(path, { headers: { Accept: "application/json" } });
+  if (!r.ok) { const e = new Error(path + ": HTTP " + r.status); e.status = r.status; throw e; }
+  return r.json();
+}
+function get(obj, ...keys) {
+  for (const k of keys) { if (obj == null) return undefined; obj = obj[k]; }
+  return obj;
+}
+
+// ------------------------------------------------------------------ plots (uPlot)
+function plotWidth(container, fraction) {
+  const w = container.clientWidth || 600;
+  return Math.max(260, Math.floor(w * (fraction || 1)) - 12);
+}
+/** Create or update a uPlot keyed by id; re-created when the series layout changes. */
+function upsertPlot(id, container, opts, data) {
+  const sig = JSON.stringify(opts.series.map(s => s.label)) + (opts.title || "");
+  let p = state.plots[id];
+  if (p && (p.sig !== sig || !container.contains(p.u.root))) { p.u.destroy(); p = null; }
+  if (!p) {
+    opts.legend = Object.assign({ live: false }, opts.legend || {});
+    for (const a of opts.axes || []) if (!a.values) a.values = (u, vals) => vals.map(v => fmt(v, 3));
+    const u = new uPlot(opts, data, container);
+    state.plots[id] = p = { u, sig };
+  } else {
+    p.u.setData(data);
+  }
+  return p.u;
+}
+function dropPlots(prefix) {
+  for (const id of Object.keys(state.plots)) {
+    if (id.startsWith(prefix)) { state.plots[id].u.destroy(); delete state.plots[id]; }
+  }
+}
+/** uPlot hook: vertical red lines at the given x values (alarm epochs). */
+function markersPlugin(xs, color) {
+  return { hooks: { draw: [u => {
+    const ctx = u.ctx; ctx.save(); ctx.strokeStyle = color || "#d62728"; ctx.lineWidth = 1.5;
+    for (const x of xs) {
+      const px = u.valToPos(x, "x", true);
+      if (px < u.bbox.left || px > u.bbox.left + u.bbox.width) continue;
+      ctx.beginPath(); ctx.moveTo(px, u.bbox.top); ctx.lineTo(px, u.bbox.top + u.bbox.height); ctx.stroke();
+    }
+    ctx.restore();
+  }] } };
+}
+
+// ------------------------------------------------------------------ fleet
+function renderFleet(systems) {
+  const body = document.querySelector("#fleet tbody");
+  body.replaceChildren();
+  if (!systems.length) { body.append(el("tr", {}, el("td", { colspan: 6, class: "na", text: "no system yet" }))); return; }
+  for (const s of systems) {
+    const n = s.n_recordings || {};
+    const alarms = s.active_alarms || [];
+    const tr = el("tr", { onclick: () => select(s.name) },
+      el("td", { text: s.name }),
+      el("td", {}, el("span", { class: "badge " + (s.state || ""), text: s.state || "–" })),
+      el("td", { class: "num", text: String(s.epoch ?? "–") }),
+      el("td", { text: s.converged ? "yes" : "no" }),
+      el("td", { class: "num", text: `${n.train ?? 0} / ${n.validation ?? 0}` }),
+      el("td", {}, alarms.length ? el("span", { class: "badge alarm", text: alarms.join(", ") })
+                                  : el("span", { class: "na", text: "none" })));
+    if (s.name === state.selected) tr.classList.add("selected");
+    body.append(tr);
+  }
+}
+function select(name) {
+  if (state.selected !== name) {
+    state.selected = name;
+    history.replaceState(null, "", "#" + encodeURIComponent(name));
+    dropPlots("");
+    state.tick = 0;
+    state.units = null;
+  }
+  refresh();
+}
+
+// ------------------------------------------------------------------ estimate and alarms
+function headline(est) {
+  // the headline: `parameters` (possibly from `best`, see estimate_source); `best` beside it
+  return { params: est.parameters || {}, source: est.estimate_source || "–", best: get(est, "best", "parameters") || {} };
+}
+function renderEstimate(est) {
+  const box = document.getElementById("estimate-table");
+  const { params, source, best } = headline(est);
+  const names = Object.keys(params).length ? Object.keys(params) : Object.keys(best);
+  if (!names.length) { box.replaceChildren(na("no estimate yet (" + (est.state || "starting") + ")")); return; }
+  const units = est.units || est.parameter_units || state.units || {};
+  const t = el("table", {}, el("tr", {}, ...["parameter", "value", "95 % interval", "source", "best (output error)", "best 95 %"].map(h => el("th", { text: h }))));
+  for (const p of names) {
+    const s = params[p] || {}; const b = best[p] || {};
+    const v = s.mean ?? s.value; const ci = s.ci95 || [];
+    const u = units[p] ? " " + units[p] : "";
+    t.append(el("tr", {}, el("td", { text: p + u }), el("td", { class: "num", text: fmt(v) }),
+      el("td", { class: "num", text: ci.length === 2 ? `${fmt(ci[0])} … ${fmt(ci[1])}` : "–" }),
+      el("td", { text: s.source || source }),
+      el("td", { class: "num", text: fmt(b.value ?? b.mean) }),
+      el("td", { class: "num", text: Array.isArray(b.ci95) ? `${fmt(b.ci95[0])} … ${fmt(b.ci95[1])}` : "–" })));
+  }
+  box.replaceChildren(t);
+  const sum = document.getElementById("system-summary");
+  const secs = est.seconds_per_epoch;
+  sum.textContent = `state ${est.state || "–"} · epoch ${est.epoch ?? "–"}` +
+    (est.converged ? ` · converged at ${est.converged_at ?? "?"}` : " · not converged") +
+    (typeof secs === "number" && secs > 0 ? ` · ${fmt(1 / secs, 3)} epochs/s` : "") +
+    ` · snapshot ${est.time_iso || isoOf(est.time)}` +
+    (est.error ? ` · error: ${est.error}` : "");
+}
+function alarmState(a) { return a.state || (a.active === false ? "cleared" : "active"); }
+function renderAlarms(drift) {
+  const box = document.getElementById("alarms");
+  const alarms = (drift && drift.alarms) || [];
+  if (!alarms.length) { box.replaceChildren(na(drift ? "no alarm" : undefined)); return; }
+  const t = el("table", {}, el("tr", {}, ...["parameter", "state", "change", "since epoch", "message"].map(h => el("th", { text: h }))));
+  for (const a of alarms.slice().reverse()) {
+    const st = alarmState(a);
+    t.append(el("tr", {}, el("td", { text: a.parameter || "–" }),
+      el("td", {}, el("span", { class: "badge " + st, text: st })),
+      el("td", { class: "num", text: typeof a.change_rel === "number" ? (100 * a.change_rel).toFixed(1) + " %" : "–" }),
+      el("td", { class: "num", text: String(a.first_epoch ?? a.epoch ?? "–") }),
+      el("td", { text: a.message || "" })));
+  }
+  box.replaceChildren(t);
+}
+
+// ------------------------------------------------------------------ traces over time
+function historyOf(drift) {
+  const h = (drift && (drift.history || drift.snapshots)) || [];
+  return h.filter(e => e && typeof e.epoch === "number");
+}
+function renderParamTraces(drift, est) {
+  const box = document.getElementById("param-plots");
+  const hist = historyOf(drift);
+  if (hist.length < 2) { dropPlots("param:"); box.replaceChildren(na("not yet available (fewer than 2 snapshots)")); return; }
+  if (box.querySelector(".na")) box.replaceChildren();
+  const names = Object.keys(Object.assign({}, ...hist.map(e => e.recent || {}), ...hist.map(e => e.parameters || {})));
+  const alarms = (drift.alarms || []);
+  const ref = get(drift, "reference", "parameters") || {};
+  const x = hist.map(e => e.epoch);
+  const w = plotWidth(box, names.length > 1 ? 0.33 : 1);
+  for (const p of names) {
+    const id = "param:" + p;
+    let holder = document.getElementById("holder-" + id);
+    if (!holder) { holder = el("div", { id: "holder-" + id }); box.append(holder); }
+    const recent = hist.map(e => numOr(get(e, "recent", p)));
+    const mean = hist.map(e => numOr(get(e, "parameters", p, "mean") ?? get(e, "parameters", p, "value")));
+    const lo = hist.map(e => numOr(get(e, "parameters", p, "ci95", 0)));
+    const hi = hist.map(e => numOr(get(e, "parameters", p, "ci95", 1)));
+    const band = get(ref, p, "band") || [];
+    const rlo = x.map(() => numOr(band[0])), rhi = x.map(() => numOr(band[1]));
+    const marks = alarms.filter(a => a.parameter === p).map(a => a.first_epoch ?? a.epoch).filter(v => typeof v === "number");
+    const opts = {
+      title: p, width: w, height: 200, plugins: [markersPlugin(marks)],
+      scales: { x: { time: false } },
+      axes: [{ label: "epoch" }, { size: 70 }],
+      series: [{ label: "epoch" },
+        { label: "recent", stroke: "#1f77b4", width: 1 },
+        { label: "mean", stroke: "#ff7f0e", width: 1.5 },
+        { label: "95 % lo", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
+        { label: "95 % hi", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
+        { label: "ref lo", stroke: "#555", dash: [4, 4], width: 1 },
+        { label: "ref hi", stroke: "#555", dash: [4, 4], width: 1 }],
+      bands: [{ series: [4, 3], fill: "rgba(255,127,14,0.18)" }],
+    };
+    upsertPlot(id, holder, opts, [x, recent, mean, lo, hi, rlo, rhi]);
+  }
+}
+function numOr(v) { return typeof v === "number" && isFinite(v) ? v : null; }
+
+function renderModal(drift) {
+  const hist = historyOf(drift);
+  for (const [key, boxId, title] of [["frequency_hz", "freq-plot", "f"], ["damping_ratio", "damping-plot", "ζ"]]) {
+    const box = document.getElementById(boxId);
+    const rows = hist.map(e => get(e, "modal", key) || get(e, "modal_estimate", key));
+    const nModes = Math.max(0, ...rows.map(r => (Array.isArray(r) ? r.length : 0)));
+    if (hist.length < 2 || nModes === 0) { dropPlots("modal:" + key); box.replaceChildren(na("not yet available")); continue; }
+    if (box.querySelector(".na")) box.replaceChildren();
+    const x = hist.map(e => e.epoch);
+    const series = [{ label: "epoch" }], data = [x];
+    for (let m = 0; m < nModes; m++) {
+      series.push({ label: `${title}${m + 1}`, stroke: COLORS[m % COLORS.length], width: 1.5 });
+      data.push(rows.map(r => (Array.isArray(r) ? numOr(r[m]) : null)));
+    }
+    upsertPlot("modal:" + key, box, { width: plotWidth(box), height: 200, scales: { x: { time: false } },
+      axes: [{ label: "epoch" }, { size: 60 }], series }, data);
+  }
+}
+
+// ------------------------------------------------------------------ validation score
+function renderValidation(est) {
+  const box = document.getElementById("validation");
+  const recs = get(est, "validation", "records") || get(est, "discriminator", "records");
+  if (!recs || !Object.keys(recs).length) { box.replaceChildren(na()); return; }
+  const t = el("table", {}, el("tr", {}, ...["record", "score (loss_D)", "|loss_D − ln 4|", "D(measured)", "D(simulated)"].map(h => el("th", { text: h }))));
+  for (const [rid, r] of Object.entries(recs)) {
+    const score = r.score ?? r.loss_d;
+    t.append(el("tr", {}, el("td", { text: rid }), el("td", { class: "num", text: fmt(score, 4) }),
+      el("td", { class: "num", text: typeof score === "number" ? fmt(Math.abs(score - Math.log(4)), 3) : "–" }),
+      el("td", { class: "num", text: fmt(r.d_real, 3) }), el("td", { class: "num", text: fmt(r.d_fake, 3) })));
+  }
+  box.replaceChildren(t);
+}
+
+// ------------------------------------------------------------------ latest record
+function renderLatest(lr) {
+  const box = document.getElementById("latest-plots");
+  const specBox = document.getElementById("spectrum-plots");
+  const cwtBox = document.getElementById("cwt-plots");
+  const meta = document.getElementById("latest-meta");
+  if (!lr || !lr.available) {
+    const why = (lr && lr.reason) || "not yet available";
+    for (const b of [box, specBox, cwtBox]) b.replaceChildren(na(why));
+    dropPlots("latest:"); meta.textContent = "";
+    return;
+  }
+  for (const b of [box, specBox, cwtBox]) if (b.querySelector(".na")) b.replaceChildren();
+  const rec = lr.record || {};
+  if (lr.parameter_units) state.units = lr.parameter_units;
+  meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${rec.received_at_iso || isoOf(rec.received_at)}), ` +
+    `simulated with ${lr.parameters_source || "?"}` + (lr.diverged ? " — the simulation diverged" : "");
+  const dofs = Object.keys(lr.dofs || {});
+  for (const d of dofs) {
+    const D = lr.dofs[d];
+    const h1 = holder(box, "latest:resp:" + d);
+    upsertPlot("latest:resp:" + d, h1, { title: `${d}: displacement [mm]` + (typeof D.nmse === "number" ? ` (NMSE ${fmt(D.nmse, 3)})` : ""),
+      width: plotWidth(box, 0.5), height: 220, scales: { x: { time: false } }, axes: [{ label: "time [s]" }, { size: 60 }],
+      series: [{ label: "t" }, { label: "measured", stroke: "#000", width: 1 }, { label: "simulated", stroke: "#d62728", width: 1 }] },
+      [lr.t, D.measured, D.simulated]);
+    const h2 = holder(box, "latest:res:" + d);
+    upsertPlot("latest:res:" + d, h2, { title: `${d}: residual measured − simulated [mm]`,
+      width: plotWidth(box, 0.5), height: 220, scales: { x: { time: false } }, axes: [{ label: "time [s]" }, { size: 60 }],
+      series: [{ label: "t" }, { label: "residual", stroke: "#9467bd", width: 1 }] }, [lr.t, D.residual]);
+    const sp = get(D, "spectrum") || {};
+    const pos = a => (a || []).map(v => (typeof v === "number" && v > 0 ? v : null));
+    const h3 = holder(specBox, "latest:spec:" + d);
+    upsertPlot("latest:spec:" + d, h3, { title: `${d}`, width: plotWidth(specBox), height: 200,
+      scales: { x: { time: false }, y: { distr: 3, range: (u, lo, hi) => [Math.max(lo, hi * 1e-4), hi * 2] } },
+      axes: [{ label: "frequency [Hz]" }, { size: 70 }], plugins: [markersPlugin(lr.modes_hz || [], "#2ca02c")],
+      series: [{ label: "Hz" }, { label: "measured", stroke: "#000", width: 1 }, { label: "simulated", stroke: "#d62728", width: 1 }] },
+      [lr.spectrum_hz, pos(sp.measured), sp.simulated ? pos(sp.simulated) : lr.spectrum_hz.map(() => null)]);
+    drawCwtRow(cwtBox, d, D.cwt || {}, lr.cwt_hz || [], lr.cwt_t || []);
+  }
+}
+function holder(box, id) {
+  let h = document.getElementById("holder-" + id);
+  if (!h) { h = el("div", { id: "holder-" + id }); box.append(h); }
+  return h;
+}
+/** CWT magnitudes (rows = frequencies, low first) as a jet-coloured canvas image. */
+function drawCwtRow(box, dof, cw, freqs, times) {
+  const id = "cwt-" + dof;
+  let row = document.getElementById(id);
+  if (!row) { row = el("div", { id, class: "cwt-row" }); box.append(row); }
+  row.replaceChildren();
+  for (const label of ["measured", "simulated"]) {
+    const m = cw[label];
+    if (!Array.isArray(m) || !m.length) { row.append(el("figure", {}, na(`${dof} ${label}: not available`))); continue; }
+    const nf = m.length, nt = m[0].length;
+    const c = el("canvas", { class: "cwt", width: nt, height: nf });
+    c.style.width = Math.min(360, Math.floor((box.clientWidth || 700) / 2) - 10) + "px"; c.style.height = "160px";
+    const ctx = c.getContext("2d"); const img = ctx.createImageData(nt, nf);
+    for (let i = 0; i < nf; i++) for (let j = 0; j < nt; j++) {
+      const [r, g, b] = jet(m[nf - 1 - i][j]); const o = 4 * (i * nt + j);
+      img.data[o] = r; img.data[o + 1] = g; img.data[o + 2] = b; img.data[o + 3] = 255;
+    }
+    ctx.putImageData(img, 0, 0);
+    const cap = `${dof} ${label}: ${fmt(freqs[0], 3)}–${fmt(freqs[freqs.length - 1], 3)} Hz (log axis), ` +
+      `${fmt(times[0], 3)}–${fmt(times[times.length - 1], 3)} s`;
+    row.append(el("figure", {}, c, el("figcaption", { text: cap })));
+  }
+}
+function jet(v) {
+  const x = Math.max(0, Math.min(1, v || 0));
+  const r = Math.max(0, Math.min(1, 1.5 - Math.abs(4 * x - 3)));
+  const g = Math.max(0, Math.min(1, 1.5 - Math.abs(4 * x - 2)));
+  const b = Math.max(0, Math.min(1, 1.5 - Math.abs(4 * x - 1)));
+  return [Math.round(255 * r), Math.round(255 * g), Math.round(255 * b)];
+}
+
+// ------------------------------------------------------------------ diagnosis (optional)
+async function diagnosisPath() {
+  // asked of the schema once, so a service without the endpoint causes no 404 in the console
+  if (!state.openapiChecked) {
+    state.openapiChecked = true;
+    try {
+      const api = await getJSON("/openapi.json");
+      state.diagnosisPath = Object.keys(api.paths || {}).find(p => /^\/v1\/systems\/\{[^}]+\}\/diagnosis$/.test(p)) || null;
+    } catch (e) { state.diagnosisPath = null; }
+  }
+  return state.diagnosisPath;
+}
+async function renderDiagnosis(name) {
+  const panel = document.getElementById("diagnosis-panel");
+  const path = await diagnosisPath();
+  if (!path) { panel.hidden = true; return; }
+  let body = null;
+  try {
+    const r = await fetch(path.replace(/\{[^}]+\}/, encodeURIComponent(name)));
+    if (r.status === 200) body = await r.json();
+  } catch (e) { body = null; }
+  if (!body) { panel.hidden = true; return; }
+  panel.hidden = false;
+  const box = document.getElementById("diagnosis");
+  const parts = [];
+  const summary = body.summary || body.message || body.verdict;
+  if (summary) parts.push(el("p", { text: typeof summary === "string" ? summary : JSON.stringify(summary) }));
+  const items = body.findings || body.candidates || body.effects || body.ranking;
+  if (Array.isArray(items) && items.length) {
+    const ul = el("ul");
+    for (const it of items.slice(0, 10)) ul.append(el("li", { text: typeof it === "string" ? it : (it.message || it.name || it.effect || JSON.stringify(it)) }));
+    parts.push(ul);
+  }
+  parts.push(el("details", {}, el("summary", { text: "raw diagnosis" }), el("pre", { text: JSON.stringify(body, null, 2) })));
+  box.replaceChildren(...parts);
+}
+
+// ------------------------------------------------------------------ the loop
+async function refresh() {
+  const status = document.getElementById("status");
+  try {
+    const fleet = await getJSON("/v1/systems");
+    const systems = fleet.systems || [];
+    if (!state.selected && systems.length) {
+      const fromHash = decodeURIComponent(location.hash.slice(1));
+      state.selected = systems.some(s => s.name === fromHash) ? fromHash : systems[0].name;
+    }
+    renderFleet(systems);
+    const sysSec = document.getElementById("system");
+    const sel = systems.find(s => s.name === state.selected);
+    if (!sel || sel.state === "invalid_spec") { sysSec.hidden = true; }
+    else {
+      sysSec.hidden = false;
+      document.getElementById("system-title").textContent = sel.name;
+      const name = encodeURIComponent(sel.name);
+      const [est, drift] = await Promise.all([getJSON(`/v1/systems/${name}/estimate`),
+                                              getJSON(`/v1/systems/${name}/drift`).catch(() => null)]);
+      renderEstimate(est); renderAlarms(drift); renderParamTraces(drift, est); renderModal(drift);
+      renderValidation(est);
+      if (state.tick % LATEST_EVERY === 0) {
+        const lr = await getJSON(`/v1/systems/${name}/latest-record`).catch(e => ({ available: false, reason: String(e.message || e) }));
+        renderLatest(lr);
+        await renderDiagnosis(sel.name);
+      }
+    }
+    state.tick++;
+    status.classList.remove("error");
+    status.textContent = `live · ${systems.length} system(s) · updated ${new Date().toISOString().replace(/\.\d+Z$/, "Z")}`;
+  } catch (e) {
+    status.classList.add("error");
+    status.textContent = "cannot reach the service: " + (e.message || e) + " (retrying)";
+  }
+}
+let timer = null;
+async function loop() { await refresh(); timer = setTimeout(loop, POLL_MS); }
+window.addEventListener("resize", () => {
+  for (const p of Object.values(state.plots)) {
+    const box = p.u.root.parentElement && p.u.root.parentElement.parentElement;
+    if (box) p.u.setSize({ width: plotWidth(box, p.u.root.parentElement.id.includes("param:") ? 0.33 : (p.u.root.parentElement.id.includes(":resp:") || p.u.root.parentElement.id.includes(":res:") ? 0.5 : 1)), height: p.u.height });
+  }
+});
+window.sivaDashboard = state;  // for the browser test and the curious
+loop();

@@ -1,0 +1,52 @@
+"""Upload validation: a recording is parsed and processed exactly as the worker will use it.
+
+Why at upload time: anything the worker could not use is refused with a 4xx naming the
+file and the problem, instead of being stored and failing later inside a thread.
+"""
+from __future__ import annotations
+
+import csv
+from typing import Any, Sequence
+
+import numpy as np
+
+from siva_core import Processing, Recording, RecordingError, Structure
+
+
+def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:
+    """The processing chain for these records: ``Processing.auto`` (none without records)."""
+    if not recordings:
+        return Processing()
+    return Processing.auto(list(recordings), list(dofs))
+
+
+def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str) -> dict[str, Any]:
+    """Validate an upload exactly as the worker will use it; returns facts for the meta.
+
+    Raises RecordingError (a 4xx) for anything unusable, including a record the processing
+    chain cannot handle (e.g. too short for its filters), so nothing unusable is stored.
+    """
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            rec = Recording.read(raw, structure.dofs, name=name, fmt=fmt)
+        except RecordingError:
+            raise
+        except ImportError as exc:
+            raise RecordingError(f"{name}: format {fmt!r} is not supported here ({exc})") from None
+        except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError,
+                csv.Error) as exc:
+            # garbage the reader did not anticipate is still the upload's fault, not a 5xx
+            raise RecordingError(f"{name}: unreadable {fmt} ({type(exc).__name__}: "
+                                 f"{str(exc)[:200]})") from None
+    try:
+        proc = processing_for([rec], structure.dofs)
+        st = proc.apply(rec, structure.dofs)
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        raise RecordingError(f"{name}: cannot be processed ({exc})") from None
+    if len(st) < 2 or not all(np.isfinite(x).all() for x in (st.q, st.v, st.a, st.f)):
+        raise RecordingError(f"{name}: processing leaves no usable (finite) samples")
+    return {"n_samples": len(rec), "fs": rec.fs, "duration_s": float(rec.time[-1] - rec.time[0]),
+            "columns": ["time", *rec.channels], "warnings": [str(w.message) for w in caught]}
