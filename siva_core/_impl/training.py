@@ -346,20 +346,27 @@ class SivaTrainer:
             sums += (loss_d.item(), loss_adv.item(), loss_mse.item())
         sums /= steps
         theta_epoch = theta.detach().mean(0).numpy()
+        e, conv, harvested = self._end_epoch(sums, theta_epoch)
+        if conv and not harvested and s.lr_converged is not None:
+            self._set_lr(s.lr_converged)
+        return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    def _end_epoch(self, sums: np.ndarray, theta_epoch: np.ndarray) -> tuple[int, bool, bool]:
+        """Log the epoch and update convergence and the Approach II harvest; returns
+        (epoch index, converged, whether this epoch's sample was harvested)."""
         e = self.epoch
         self.epoch += 1
         h = self.history
-        h["loss_d"].append(float(sums[0]))
-        h["loss_adv"].append(float(sums[1]))
-        h["loss_mse"].append(float(sums[2]))
+        for key, value in zip(("loss_d", "loss_adv", "loss_mse"), sums):
+            h[key].append(float(value))
         h["theta"].append(theta_epoch)
         was = self.monitor.converged
         conv = self.monitor.update(e, theta_epoch)
-        if conv and was and e > self.monitor.converged_at + s.ensemble_burn_in:
+        harvested = bool(conv and was
+                         and e > self.monitor.converged_at + self.settings.ensemble_burn_in)
+        if harvested:
             self.ensemble.add(theta_epoch, e)
-        elif conv and s.lr_converged is not None:
-            self._set_lr(s.lr_converged)
-        return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+        return e, conv, harvested
 
     # ------------------------------------------------------------------ output-error phase
     def use_output_error(self, train: Linearization, val: Linearization | None = None) -> None:
@@ -421,19 +428,10 @@ class SivaTrainer:
         theta_epoch = theta.detach().mean(0).numpy()
         # the epoch's own optimum (closed form), to measure how well the generator tracks it
         target = -np.linalg.solve(ph.A.numpy(), g.numpy())
-        e_ = self.epoch
-        self.epoch += 1
-        h = self.history
-        h["loss_d"].append(float(sums[0]))
-        h["loss_adv"].append(float(sums[1]))
-        h["loss_mse"].append(float(sums[2]))
-        h["theta"].append(theta_epoch)
-        was = self.monitor.converged
-        conv = self.monitor.update(e_, theta_epoch)
-        if conv and was and e_ > self.monitor.converged_at + s.ensemble_burn_in:
-            self.ensemble.add(theta_epoch, e_)
+        e, conv, harvested = self._end_epoch(sums, theta_epoch)
+        if harvested:
             self.oe_targets_.append(ph.lin.to_theta(target))
-        return EpochLog(e_, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+        return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
 
     def _set_lr(self, lr: float) -> None:
         for opt in (self.opt_g, self.opt_d):
