@@ -74,11 +74,13 @@ def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
             if e["best"]["time"] not in [b["time"] for b in bests]:
                 bests.append(e["best"])
             time.sleep(0.1)
-    best = est["best"]  # the first one: recommend_best on the training record
-    assert set(best) >= {"parameters", "epoch", "n_records", "time", "output_error"}
-    assert best["source"] == "recommend_best"
-    assert best["n_records"] == 1 and best["refined"] is True
-    assert best["output_error"] is not None and best["output_error"] < 1e-6
+    best = est["best"]  # the first seen: recommend_best, or already a per-record fit's
+    assert set(best) >= {"parameters", "epoch", "n_records", "time"}
+    # (a per-record fit can replace the first best between two reads 0.2 s apart)
+    assert best["source"] in ("recommend_best", "records"), best["source"]
+    if best["source"] == "recommend_best":
+        assert best["n_records"] == 1 and best["refined"] is True
+        assert best["output_error"] is not None and best["output_error"] < 1e-6
     # the headline is best from then on; the ensemble stays under its own key
     assert est["estimate_source"] == "best" and est["converged"]
     assert est["ensemble_source"] == "approach_II"
@@ -91,7 +93,7 @@ def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
         assert b["ci95"][0] <= b["value"] <= b["ci95"][1]
     # reads kept answering while training and refining ran (the first ones included)
     assert max(latencies) < 1.0, sorted(latencies)[-5:]
-    assert len(bests) >= 2 and bests[-1]["source"] == "records", \
+    assert bests[-1]["source"] == "records", \
         "expected the per-record fits to update best while reading"
     for p, true in truth.items():
         assert bests[-1]["parameters"][p]["value"] == pytest.approx(true, rel=0.005), p
