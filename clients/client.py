@@ -18,7 +18,7 @@ API = "/v1"
 DEFAULT_URL = "http://127.0.0.1:8000"
 
 # upload content type per file suffix (CONTRACT.md: CSV; the same content as JSON / MCAP)
-# (the server's registry: siva_core._impl.formats; a test keeps the two in step)
+# (the server's registry: siva_core.RECORDING_FORMATS; a test keeps the two in step)
 CONTENT_TYPES: dict[str, str] = {
     "csv": "text/csv",
     "txt": "text/csv",

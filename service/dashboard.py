@@ -53,7 +53,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
     is one, else the headline means): measured vs simulated displacement [mm] and residual,
     Fourier spectra, CWT.  ``available: false`` with a ``reason`` while there is nothing to
     show yet.  Computed in a thread and cached per data version (record id + parameters)."""
-    from .app import ApiError
+    from .errors import ApiError
 
     svc = request.app.state.service
     w = svc.worker(name)  # 404 for an unknown system

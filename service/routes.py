@@ -6,7 +6,7 @@ reads return the worker's latest published snapshot, so no route ever waits for 
 from __future__ import annotations
 
 import hmac
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
@@ -22,8 +22,6 @@ from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, 
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
 from .estimate import estimate_view
 
-if TYPE_CHECKING:  # the app imports this module; at run time the request holds the service
-    from .app import SivaService
 
 router = APIRouter()
 
@@ -43,7 +41,8 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 CONTENT_FORMATS = media_types()
 
 
-def service_of(request: Request) -> "SivaService":
+def service_of(request: Request) -> Any:
+    """The ``SivaService`` the app holds (not imported here: app.py imports this module)."""
     return request.app.state.service
 
 

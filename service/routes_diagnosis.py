@@ -22,7 +22,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 
 from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
-from .app import ApiError
+from .errors import ApiError
 from .routes import service_of
 
 log = logging.getLogger("siva.service.diagnosis")

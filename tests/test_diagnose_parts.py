@@ -12,8 +12,8 @@ from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, aug
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.model_spec import element_block, spec_toml
 from siva_core._impl.diagnose.screening import select_for_fit
-from siva_core._impl.diagnose.sensors import (ACC_GAIN, CHANNEL_DELAY, corrected,
-                                              sensor_candidates)
+from siva_core._impl.diagnose.sensor_faults import ACC_GAIN, CHANNEL_DELAY, corrected
+from siva_core._impl.diagnose.sensors import sensor_candidates
 from siva_core._impl.diagnose.signatures import amplitude_signatures
 from siva_core._impl.diagnose.units import UNITS, with_unit
 from siva_core import EFFECTS, Processing, Recording, Structure

@@ -64,7 +64,8 @@ def _peak_rss_growth_mb(code: str) -> str:
         def hwm_mb():
             return int(re.search(r"VmHWM:\\s*(\\d+)", open('/proc/self/status').read())[1]) / 1024
         from siva_core import Recording, RecordingError
-        import siva_core._impl.formats.mcap, mcap.stream_reader, zstandard
+        import mcap.stream_reader, zstandard
+        import siva_core; siva_core.RECORDING_FORMATS  # the readers, loaded before measuring
         raw = open(sys.argv[1], 'rb').read()
         base = hwm_mb()
         """) + textwrap.dedent(code) + textwrap.dedent("""

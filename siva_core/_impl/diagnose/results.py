@@ -73,7 +73,7 @@ class Candidate:
         them; a structural candidate leaves them as measured)."""
         if self.category != "sensor" or self.effect.magnitude not in self.coefficients:
             return list(records)
-        from .sensors import corrected
+        from .sensor_faults import corrected
 
         return corrected(records, self.effect, self.loc.between[0],
                          self.coefficients[self.effect.magnitude])

@@ -9,10 +9,8 @@ nominal model is re-fitted: if that closes the gap, the verdict is "sensor".
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -21,72 +19,9 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate, Location
+from .sensor_faults import ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected
 from .settings import DiagnoseSettings
 
-#: gain errors scanned (measured / true); a sensitivity off by more than 2x is a wiring fault
-GAINS = tuple(float(x) for x in np.exp(np.linspace(np.log(0.7), np.log(1.4), 7)))
-#: channel delays scanned, in samples of the record (both signs)
-DELAY_SAMPLES = (-4.0, -2.0, -1.0, 1.0, 2.0, 4.0)
-
-
-@dataclass(frozen=True)
-class SensorFault:
-    """One sensor fault on one channel (quacks like an ``Effect`` for the ranking)."""
-
-    name: str
-    kind: str
-    explanation: str
-    magnitude: str
-    unit: str
-    family: str = "sensor"
-    positive: frozenset[str] = frozenset()
-
-    def describe(self, coeffs: dict[str, float]) -> str:
-        v = coeffs.get(self.magnitude)
-        if v is None:
-            return self.explanation
-        if self.magnitude == "gain":
-            return f"{self.explanation} Identified gain {v:.4g} ({100 * (v - 1):+.1f} %)."
-        return f"{self.explanation} Identified delay {1e3 * v:.4g} ms."
-
-    def grid(self, fs: float) -> list[float]:
-        return list(GAINS) if self.magnitude == "gain" else [s / fs for s in DELAY_SAMPLES]
-
-
-ACC_GAIN = SensorFault(
-    "accelerometer_gain", "accelerometer_gain",
-    "an accelerometer's sensitivity is off: its channel is scaled by a constant factor on "
-    "every record, which no structural parameter reproduces at every mode alike "
-    "(with known masses).", "gain", "-")
-CHANNEL_DELAY = SensorFault(
-    "channel_delay", "channel_delay",
-    "one channel lags the others by a constant time (a filter or buffer offset on that "
-    "input): a phase error growing in proportion to frequency, on every record alike.",
-    "delay", "s")
-FORCE_GAIN = SensorFault(
-    "force_gain", "force_gain",
-    "the force transducer's sensitivity is off: every response is scaled against the "
-    "measured force by the same factor, which no stiffness or damping can mimic when the "
-    "masses are known.", "gain", "-")
-
-SENSOR_FAULTS = {f.name: f for f in (ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN)}
-
-
-def corrected(records: Sequence[Recording], fault: SensorFault, channel: str,
-              value: float) -> list[Recording]:
-    """The records as a sensor without the fault would have given them."""
-    out = []
-    for r in records:
-        if channel not in r.channels:
-            out.append(r)
-            continue
-        x = np.asarray(r.channels[channel], float)
-        if fault.magnitude == "gain":
-            y = x / value
-        else:  # measured(t) = true(t - delay)  ->  true(t) = measured(t + delay)
-            y = np.interp(r.time + value, r.time, x)
-        out.append(dataclasses.replace(r, channels={**r.channels, channel: y}))
-    return out
 
 
 def sensor_candidates(structure: Structure, records: Sequence[Recording]) -> list[Candidate]:
