@@ -174,7 +174,7 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         # still hold the impulse error that the force scale absorbs
         noise = proj(noise_replicates(prob, theta[None], extra0, r, series, n_rep=n_noise,
                                       seed=seed).T).T
-    weights = [1.0 / (rr.rms * math.sqrt(rr.target.shape[0] * prob.n_groups)) for rr in prob.records]
+    weights = [prob.weight(k) for k in range(len(prob.records))]
     states = [prob.chain.apply(rr.rec, structure.dofs) for rr in prob.records]
     return Linearization(theta.copy(), is_log, scale, r, J, series, weights,
                          [rr.target for rr in prob.records], states, noise,

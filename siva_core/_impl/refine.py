@@ -164,13 +164,30 @@ class OutputErrorProblem:
                               st.start_index, st.decimation))
         return out
 
-    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
-                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None
-                   ) -> tuple[States, np.ndarray]:
-        """Batched: simulate record ``k`` for all sets, run the chain once on (B, T, n)
-        arrays (``Processing.apply_simulated``).  Returns (States with (B, T', n) arrays,
-        (B,) mask of sets whose simulation stayed finite)."""
+    def weight(self, k: int) -> np.ndarray:
+        """(n_dof,) normalisation of record ``k``'s residuals: 1 / (RMS sqrt(T * groups)),
+        so the sum of squares over all records is the mean NMSE."""
         r = self.records[k]
+        return 1.0 / (r.rms * math.sqrt(r.target.shape[0] * self.n_groups))
+
+    def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
+                         dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
+                         record: _Record | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
+        ``record`` replaces the stored one (e.g. the same record with another force)."""
+        r = record or self.records[k]
+        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r)
+        sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
+                       axis=-1)
+        return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
+
+    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
+                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
+                   record: _Record | None = None) -> tuple[States, np.ndarray]:
+        """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
+        on (B, T, n) arrays (``Processing.apply_simulated``).  Returns (States with
+        (B, T', n) arrays, (B,) mask of sets whose simulation stayed finite)."""
+        r = record or self.records[k]
         q0 = r.q0 if dq0 is None else r.q0 + dq0
         v0 = r.v0 if dv0 is None else r.v0 + dv0
         sim = simulate(self.structure, thetas, r.rec.time, q0, v0, r.force,
@@ -195,16 +212,12 @@ class OutputErrorProblem:
         B = th.shape[0]
         out = np.empty((B, self.n_residuals))
         col = 0
-        groups = self.n_groups
         for k, r in enumerate(self.records):
             fs = None if force_scales is None else force_scales[:, k]
-            st, ok = self._processed(th, k, fs, None if dq0 is None else dq0[:, k],
-                                     None if dv0 is None else dv0[:, k])
+            res, ok = self.record_residuals(th, k, fs, None if dq0 is None else dq0[:, k],
+                                            None if dv0 is None else dv0[:, k])
             size = r.target.size
-            w = 1.0 / (r.rms * math.sqrt(r.target.shape[0] * groups))
-            sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
-                           axis=-1)
-            out[:, col:col + size] = ((sim - r.target) * w).reshape(B, size)
+            out[:, col:col + size] = res
             out[~ok, col:col + size] = np.nan
             col += size
         return out
@@ -563,34 +576,18 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
             fs = None if "force_scales" not in extra else extra["force_scales"][:, k]
             dq = None if "dq0" not in extra else extra["dq0"][:, k]
             dv = None if "dv0" not in extra else extra["dv0"][:, k]
-            base, ok = _record_residuals(prob, k, rec, theta, fs, dq, dv)
+            base, ok = prob.record_residuals(theta, k, fs, dq, dv)
             for b in range(n_rep):
                 noisy = rec.force.copy()
                 noisy[pulse] += sigma * rng.standard_normal((int(pulse.sum()), noisy.shape[1]))
                 alt = dataclasses.replace(rec, force=noisy, _staged=None)
-                rb, okb = _record_residuals(prob, k, alt, theta, fs, dq, dv)
+                rb, okb = prob.record_residuals(theta, k, fs, dq, dv, record=alt)
                 if ok[0] and okb[0]:
                     E[b, col:col + size] += (rb - base)[0]
         col += size
     # centred: a nonlinear response to force noise has a small mean shift (second order),
     # which is the estimator's bias estimate, not a spread to sample from
     return E - E.mean(axis=0)
-
-
-def _record_residuals(prob: OutputErrorProblem, k: int, rec: _Record, theta: np.ndarray,
-                      fs: np.ndarray | None, dq: np.ndarray | None, dv: np.ndarray | None
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised residuals of record ``k`` alone (as in ``residuals``) with ``rec``'s force."""
-    saved = prob.records[k]
-    prob.records[k] = rec
-    try:
-        st, ok = prob._processed(np.atleast_2d(theta), k, fs, dq, dv)
-    finally:
-        prob.records[k] = saved
-    w = 1.0 / (rec.rms * math.sqrt(rec.target.shape[0] * prob.n_groups))
-    sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(rec.quantities)],
-                   axis=-1)
-    return ((sim - rec.target) * w).reshape(sim.shape[0], -1), ok
 
 
 def _force_noise(structure: Any, rec: _Record) -> tuple[np.ndarray | None, np.ndarray]:

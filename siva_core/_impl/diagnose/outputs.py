@@ -2,7 +2,6 @@
 candidate locations (which DOFs an element joins, relative motion across it)."""
 from __future__ import annotations
 
-import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -78,8 +77,7 @@ class _Outputs:
         return sim * self.weight(k)
 
     def weight(self, k: int) -> np.ndarray:
-        r = self.records[k]
-        return 1.0 / (r.rms * math.sqrt(r.target.shape[0] * self.n_groups))
+        return self.prob.weight(k)
 
 
 _ATTR = {"disp": "q", "vel": "v", "acc": "a"}
