@@ -50,6 +50,13 @@ ENV_VARS: dict[str, str] = {
     "SIVA_MAX_SAMPLING_RATE_HZ": "max_sampling_rate_hz",
     "SIVA_STOP_TIMEOUT_S": "stop_timeout_s",
     "SIVA_STUCK_AFTER_S": "stuck_after_s",
+    "SIVA_EXECUTOR": "executor",
+    "SIVA_RAY_ADDRESS": "ray_address",
+    "SIVA_RAY_NAMESPACE": "ray_namespace",
+    "SIVA_RAY_SYSTEMS_PER_ACTOR": "ray_systems_per_actor",
+    "SIVA_RAY_CPUS_PER_ACTOR": "ray_cpus_per_actor",
+    "SIVA_RAY_POLL_S": "ray_poll_s",
+    "SIVA_RAY_KEEP_ACTORS": "ray_keep_actors",
 }
 
 
@@ -101,6 +108,14 @@ class Settings:
     # Supervision.
     stop_timeout_s: float = 10.0        # DELETE / SIGTERM wait at most this for a trainer
     stuck_after_s: float = 600.0        # /healthz: a trainer without progress this long is stuck
+    # Where trainers run (docs/fleet.md): "threads" in this process, or "ray" actors.
+    executor: str = "threads"
+    ray_address: str | None = None      # None: a running cluster ("auto") else a local one
+    ray_namespace: str = "siva"
+    ray_systems_per_actor: int = 8      # systems per trainer actor (bounds processes/memory)
+    ray_cpus_per_actor: float = 1.0     # logical CPUs an actor asks for; torch threads follow
+    ray_poll_s: float = 0.5             # how often the front fetches snapshots and events
+    ray_keep_actors: bool = False       # leave the trainer actors running after a clean stop
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -111,7 +126,7 @@ class Settings:
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
                     "refine_candidates", "drift_baseline_records", "headline_window",
                     "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
-                    "max_dofs", "max_elements", "max_parameters")
+                    "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
@@ -120,6 +135,12 @@ class Settings:
                      "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
+        if self.executor not in ("threads", "ray"):
+            raise ValueError(f"setting executor must be 'threads' or 'ray', got {self.executor!r}")
+        if not (self.ray_cpus_per_actor > 0 and self.ray_poll_s > 0):
+            raise ValueError("settings ray_cpus_per_actor and ray_poll_s must be > 0")
+        if self.ray_address == "":
+            object.__setattr__(self, "ray_address", None)
         if not 0 < self.min_sampling_rate_hz < self.max_sampling_rate_hz:
             raise ValueError("settings min_sampling_rate_hz < max_sampling_rate_hz, both > 0")
         if self.auto_validation_every < 2:
