@@ -1,0 +1,574 @@
+"""Fleet benchmark: N LO-NO systems streaming simulated impacts into one ``siva serve``.
+
+Starts the real server (``python -m siva_cli serve`` on a free 127.0.0.1 port, temporary
+data dir), with the trainers as threads in it (``SIVA_EXECUTOR=threads``) or as Ray
+actors on a local two-node cluster (``SIVA_EXECUTOR=ray``, ``scripts/ray-local-cluster.sh``
+on a port of its own), registers N systems with the paper's LO-NO model
+(``examples/models/lono.toml``: 2 DOF, 6 free parameters, 4 s records at 2048 Hz - the
+realistic case; a 1-DOF linear model would train faster and understate the cost), gives
+each a training and a validation record, waits until every trainer has published an
+epoch, then for ``--window`` seconds streams one record per system every ``--period``
+seconds, staggered (system i starts at i * period / N; every 4th record is validation).
+Records come from ``service.demo.simulate_impact`` (hammer 30-900 N, sensor noise, hum).
+
+Measured per executor and N, over the window:
+
+* aggregate epochs per second: sum over systems of the epoch increase / window;
+* record to estimate: from the 202 of an upload to the first GET .../estimate whose
+  ``data.train`` / ``data.validation`` lists the record (the record is in the training
+  data of a published snapshot; polled every 0.5 s, so up to 0.5 s late) - p50, p95;
+  also the same to the first estimate whose monitoring has fitted it
+  (``monitoring.processed_index`` >= the record's index: the headline includes it);
+* the longest gap between successive published snapshots of any system (the snapshot's
+  own ``time``, from /metrics every 2 s), not counting time a system sat idle or waiting
+  for data; must be <= 60 s with 64 systems;
+* memory: RSS (and PSS) of the server plus, with Ray, the trainer-host and Ray daemon
+  processes; the base before any system, then (total - base) / N per system;
+* CPU: CPU seconds of those processes / window (cores in use), per epoch and per record.
+
+    python benchmarks/bench_fleet.py [--executor threads|ray|both] [--systems 1,4,16,64]
+           [--period 30] [--window S] [--quick] [--json FILE]
+
+Traffic goes to 127.0.0.1 only; every loop has a deadline.  Needs psutil (the test extra)
+and, for ``ray``, the ray extra (``pip install .[ray]``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import re
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _fleet_processes import (GROUPS, LocalRayCluster, ProcessMeter, ServerProcess,  # noqa: E402
+                              machine_busy_seconds, total, unhandled_errors)
+from clients import SivaClient  # noqa: E402
+from service.demo import LONO_SPEC, LONO_TRUTH, lono_structure, simulate_impact, to_csv  # noqa: E402
+
+#: states in which no new snapshot is expected (not counted as a gap)
+PAUSED = {"idle", "waiting_for_data", "waiting_for_validation", "starting", "error"}
+#: server settings of every run (everything else: the service's defaults)
+SERVER_ENV = {"SIVA_LOG_LEVEL": "WARNING", "SIVA_TORCH_THREADS": "1"}
+METRICS_EVERY_S = 2.0
+PENDING_POLL_S = 0.5
+MEMORY_EVERY_S = 10.0
+PROGRESS_EVERY_S = 15.0
+
+
+@dataclass
+class Case:
+    executor: str
+    n: int
+    window_s: float
+    period_s: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.executor} N={self.n}"
+
+    def planned_s(self, grace_s: float) -> float:
+        """A rough duration, for the ETA."""
+        setup = 15 + 0.6 * self.n + (25 if self.executor == "ray" else 0)
+        return setup + 20 + 1.5 * self.n + self.window_s + min(grace_s, 15)
+
+
+@dataclass
+class Upload:
+    system: str
+    id: str
+    index: int
+    role: str
+    t_ack: float
+    ack_s: float
+    in_data_s: float | None = None          # first seen in data.train/validation (client)
+    in_data_published_s: float | None = None  # that snapshot's own time - t_ack
+    monitored_s: float | None = None        # first seen fitted by the monitoring
+
+
+@dataclass
+class GapTracker:
+    """Longest time between successive published snapshots of one system, not counting
+    intervals in which it was seen paused (idle, waiting for data)."""
+
+    last_t: float | None = None
+    paused: bool = False
+    max_gap: float = 0.0
+    updates: int = 0
+
+    def observe(self, snap_t: float | None, state: str | None) -> None:
+        if snap_t is not None and snap_t != self.last_t:
+            if self.last_t is not None and not self.paused:
+                self.max_gap = max(self.max_gap, snap_t - self.last_t)
+                self.updates += 1
+            self.last_t = snap_t
+            self.paused = False
+        if state in PAUSED:
+            self.paused = True
+
+    def close(self, t_end: float) -> None:
+        if self.last_t is not None and not self.paused:
+            self.max_gap = max(self.max_gap, t_end - self.last_t)
+
+
+@dataclass
+class Progress:
+    """One line every ``PROGRESS_EVERY_S`` with the ETA of the whole run."""
+
+    cases: list[Case]
+    grace_s: float
+    t_start: float = field(default_factory=time.monotonic)
+    done: int = 0
+    _last: float = 0.0
+
+    def eta(self, case_left_s: float) -> float:
+        rest = sum(c.planned_s(self.grace_s) for c in self.cases[self.done + 1:])
+        return case_left_s + rest
+
+    def line(self, case: Case, what: str, case_left_s: float, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last < PROGRESS_EVERY_S:
+            return
+        self._last = now
+        eta = self.eta(case_left_s)
+        print(f"[{time.strftime('%H:%M:%S')}] case {self.done + 1}/{len(self.cases)} "
+              f"{case.label}: {what} | elapsed {fmt_min(now - self.t_start)}, "
+              f"ETA {fmt_min(eta)}", file=sys.stderr, flush=True)
+
+
+def fmt_min(s: float) -> str:
+    return f"{int(s // 60)}m{int(s % 60):02d}s"
+
+
+# ---------------------------------------------------------------------------- records
+def record_pool(n: int, seed: int) -> list[bytes]:
+    """``n`` distinct LO-NO impact records (CSV), shared by every system (the store
+    deduplicates within a system only)."""
+    rng = np.random.default_rng(seed)
+    structure = lono_structure()
+    return [to_csv(simulate_impact(LONO_TRUTH, float(rng.uniform(30.0, 900.0)), rng,
+                                   structure=structure)) for _ in range(n)]
+
+
+# ---------------------------------------------------------------------------- observing
+METRIC_RE = re.compile(r'^(siva_epoch|siva_snapshot_timestamp_seconds)\{system="([^"]+)"\} (\S+)$')
+
+
+def scrape(client: SivaClient) -> dict[str, dict[str, float]]:
+    """siva_epoch and siva_snapshot_timestamp_seconds per system from GET /metrics."""
+    text = client._http.get("/metrics").text
+    out: dict[str, dict[str, float]] = {}
+    for line in text.splitlines():
+        m = METRIC_RE.match(line)
+        if m:
+            out.setdefault(m.group(2), {})[m.group(1)] = float(m.group(3))
+    return out
+
+
+def fleet_states(client: SivaClient) -> dict[str, dict[str, Any]]:
+    """GET /v1/systems: state and epoch of every system, in one request."""
+    return {s["name"]: s for s in client._http.get("/v1/systems").json()["systems"]}
+
+
+def pct(xs: list[float], q: float) -> float | None:
+    return float(np.percentile(np.asarray(xs), q)) if xs else None
+
+
+def bounded_wait(cond: Callable[[], Any], timeout: float, every: float) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        out = cond()
+        if out:
+            return out
+        time.sleep(every)
+    return None
+
+
+# ---------------------------------------------------------------------------- one case
+def run_case(case: Case, pool: list[bytes], progress: Progress, grace_s: float,
+             node_cpus: int, keep_logs: Path | None) -> dict[str, Any]:
+    names = [f"s{i:03d}" for i in range(case.n)]
+    with tempfile.TemporaryDirectory(prefix="siva-fleet-") as tmp:
+        cluster = LocalRayCluster(node_cpus) if case.executor == "ray" else None
+        env = {**SERVER_ENV, "SIVA_EXECUTOR": case.executor}
+        if cluster is not None:
+            progress.line(case, "starting the Ray cluster", case.planned_s(grace_s), True)
+            env["SIVA_RAY_ADDRESS"] = cluster.start()
+        server = ServerProcess(Path(tmp) / "data", env, Path(tmp) / "server.log")
+        try:
+            server.start()
+            meter = ProcessMeter(server.pid, cluster)
+            time.sleep(2.0)
+            base = meter.memory(pss=True)
+            with SivaClient(server.url, timeout=120) as client:
+                result = measure(case, client, meter, names, pool, progress, grace_s)
+            result["memory_base"] = base
+        finally:
+            server.stop()
+            if cluster is not None:
+                cluster.stop()
+            log_text = server.log_text()
+            if keep_logs is not None:
+                keep_logs.mkdir(parents=True, exist_ok=True)
+                (keep_logs / f"server-{case.executor}-{case.n}.log").write_text(log_text)
+        result["server_log_errors"] = unhandled_errors(log_text)
+    return summarise(case, result)
+
+
+def measure(case: Case, client: SivaClient, meter: ProcessMeter, names: list[str],
+            pool: list[bytes], progress: Progress, grace_s: float) -> dict[str, Any]:
+    t_setup = time.monotonic()
+    for i, name in enumerate(names):
+        client.register(name, LONO_SPEC)
+        client.upload(name, pool[0], role="train")
+        client.upload(name, pool[1], role="validation")
+        progress.line(case, f"registered {i + 1}/{case.n}", case.planned_s(grace_s))
+    if case.executor == "ray":
+        hosts = bounded_wait(lambda: meter.memory()["trainer_hosts"], 120, 1.0)
+        if not hosts:
+            raise RuntimeError("SIVA_EXECUTOR=ray but no Ray trainer-host process "
+                               f"({'ray::TrainerHost'}) appeared: does this checkout have the "
+                               "ray executor (service/ray_executor.py)?")
+
+    def all_started() -> bool:
+        states = fleet_states(client)
+        progress.line(case, f"warm-up: {sum(s['epoch'] > 0 for s in states.values())}/"
+                            f"{case.n} trainers have an epoch", case.window_s + 30)
+        return all(states.get(n, {}).get("epoch", 0) > 0 for n in names)
+
+    warm_timeout = 120 + 3 * case.n
+    started = bounded_wait(all_started, warm_timeout, 1.0)
+    warmup_s = time.monotonic() - t_setup
+
+    window = FleetWindow(case, client, meter, names, pool, progress, grace_s)
+    return {"warmup_s": warmup_s, "all_trainers_started": bool(started), **window.run()}
+
+
+class FleetWindow:
+    """The measurement window: stream, observe, then wait (``grace_s``) for the last records."""
+
+    def __init__(self, case: Case, client: SivaClient, meter: ProcessMeter, names: list[str],
+                 pool: list[bytes], progress: Progress, grace_s: float) -> None:
+        self.case, self.client, self.meter, self.names = case, client, meter, names
+        self.pool, self.progress, self.grace_s = pool, progress, grace_s
+        self.gaps = {n: GapTracker() for n in names}
+        self.uploads: list[Upload] = []
+        self.pending: dict[str, list[Upload]] = {n: [] for n in names}
+        self.last_poll = {n: 0.0 for n in names}
+        self.sent = {n: 0 for n in names}
+        self.offsets = {n: i * case.period_s / case.n for i, n in enumerate(names)}
+        self.mem_samples: list[dict[str, float]] = []
+        self.state_obs: dict[str, int] = {}
+
+    def run(self) -> dict[str, Any]:
+        states0 = self._observe()
+        cpu0, busy0, load0 = self.meter.cpu(), machine_busy_seconds(), os.getloadavg()
+        t0, m0 = time.time(), time.monotonic()
+        end = m0 + self.case.window_s
+        next_metrics = next_memory = m0
+        while (now := time.monotonic()) < end:
+            self._send_due(now - m0)
+            if now >= next_metrics:
+                next_metrics = now + METRICS_EVERY_S
+                self._observe()
+            if now >= next_memory:
+                next_memory = now + MEMORY_EVERY_S
+                self.mem_samples.append(self.meter.memory(pss=len(self.mem_samples) % 3 == 0))
+            self._poll_pending(streaming=True)
+            self.progress.line(self.case, f"window {now - m0:4.0f}/{self.case.window_s:.0f} s, "
+                                          f"{len(self.uploads)} records sent",
+                               end - now + min(self.grace_s, 15))
+            time.sleep(0.05)
+        t_end, wall = time.time(), time.monotonic() - m0
+        cpu1, busy1, load1 = self.meter.cpu(), machine_busy_seconds(), os.getloadavg()
+        states1 = self._observe()
+        for g in self.gaps.values():
+            g.close(t_end)
+        self.mem_samples.append(self.meter.memory(pss=True))
+        grace_end = time.monotonic() + self.grace_s
+        while (now := time.monotonic()) < grace_end and any(
+                u.in_data_s is None for u in self.uploads):
+            self._poll_pending(streaming=False)
+            self.progress.line(self.case, f"grace: {sum(u.in_data_s is None for u in self.uploads)}"
+                                          " records not yet in a published estimate",
+                               grace_end - now)
+            time.sleep(0.05)
+        return {
+            "window_s": wall, "t_start_unix": t0,
+            "epochs": {n: int(states1.get(n, {}).get("epoch", 0))
+                       - int(states0.get(n, {}).get("epoch", 0)) for n in self.names},
+            "states_end": _count(s.get("state") for s in states1.values()),
+            "converged_end": sum(bool(s.get("converged")) for s in states1.values()),
+            "state_observations": self.state_obs,
+            "uploads": [asdict(u) for u in self.uploads],
+            "gaps": {n: asdict(g) for n, g in self.gaps.items()},
+            "cpu_s": ProcessMeter.cpu_delta(cpu0, cpu1),
+            "machine_busy_cores": (busy1 - busy0) / wall,
+            "loadavg_start": load0, "loadavg_end": load1,
+            "memory_samples": self.mem_samples,
+        }
+
+    def _send_due(self, elapsed: float) -> None:
+        """Upload every record that is due (system i: at offset_i + k * period)."""
+        for n in self.names:
+            k = self.sent[n]
+            if elapsed < self.offsets[n] + k * self.case.period_s or 2 + k >= len(self.pool):
+                continue
+            role = "validation" if k % 4 == 3 else "train"
+            t_send = time.time()
+            ack = self.client.upload(n, self.pool[2 + k], role=role)
+            t_ack = time.time()
+            up = Upload(n, ack["id"], int(ack["index"]), role, t_ack, t_ack - t_send)
+            self.uploads.append(up)
+            self.pending[n].append(up)
+            self.sent[n] += 1
+
+    def _observe(self) -> dict[str, dict[str, Any]]:
+        """Snapshot times (/metrics) and states (/v1/systems) of every system."""
+        metrics, states = scrape(self.client), fleet_states(self.client)
+        for n in self.names:
+            st = states.get(n, {}).get("state")
+            self.state_obs[str(st)] = self.state_obs.get(str(st), 0) + 1
+            self.gaps[n].observe(metrics.get(n, {}).get("siva_snapshot_timestamp_seconds"), st)
+        return states
+
+    def _poll_pending(self, streaming: bool) -> None:
+        """GET .../estimate of systems with records not yet seen (every 0.5 s; every 2 s
+        when only the monitoring is awaited, and not at all after the window)."""
+        for n in self.names:
+            todo = self.pending[n]
+            since = time.monotonic() - self.last_poll[n]
+            if not todo or since < PENDING_POLL_S:
+                continue
+            if all(u.in_data_s is not None for u in todo) and (
+                    not streaming or since < 4 * PENDING_POLL_S):
+                continue
+            self.last_poll[n] = time.monotonic()
+            est = self.client.estimate(n)
+            t_obs = time.time()
+            data = est.get("data") or {}
+            listed = set(data.get("train") or []) | set(data.get("validation") or [])
+            processed = (est.get("monitoring") or {}).get("processed_index")
+            for u in todo:
+                if u.in_data_s is None and u.id in listed:
+                    u.in_data_s = t_obs - u.t_ack
+                    u.in_data_published_s = max(0.0, float(est.get("time", t_obs)) - u.t_ack)
+                if u.monitored_s is None and processed is not None and processed >= u.index:
+                    u.monitored_s = t_obs - u.t_ack
+            self.pending[n] = [u for u in todo if u.in_data_s is None or u.monitored_s is None]
+
+
+def _count(xs: Any) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for x in xs:
+        out[str(x)] = out.get(str(x), 0) + 1
+    return out
+
+
+def summarise(case: Case, r: dict[str, Any]) -> dict[str, Any]:
+    """The numbers of the table (and everything raw, for the JSON)."""
+    wall = r["window_s"]
+    ups = r["uploads"]
+    in_data = [u["in_data_s"] for u in ups if u["in_data_s"] is not None]
+    published = [u["in_data_published_s"] for u in ups if u["in_data_published_s"] is not None]
+    monitored = [u["monitored_s"] for u in ups if u["monitored_s"] is not None]
+    epochs = sum(r["epochs"].values())
+    gaps = [g["max_gap"] for g in r["gaps"].values()]
+    updates = [g["updates"] for g in r["gaps"].values()]
+    cpu = r["cpu_s"]
+    cpu_total = sum(cpu.values())
+    base = r["memory_base"]
+    peak = max(r["memory_samples"], key=total)
+    pss = [m for m in r["memory_samples"] if "server_pss_mb" in m]
+    last_pss = pss[-1] if pss else {}
+    obs = r["state_observations"]
+    n_obs = max(1, sum(obs.values()))
+    return {
+        "executor": case.executor, "n_systems": case.n, "period_s": case.period_s,
+        "window_s": wall, "warmup_s": r["warmup_s"],
+        "all_trainers_started": r["all_trainers_started"],
+        "epochs_per_s": epochs / wall,
+        "epochs_per_s_per_system": {"min": min(r["epochs"].values()) / wall,
+                                    "median": statistics.median(r["epochs"].values()) / wall},
+        "records_sent": len(ups),
+        "upload_ack_s": {"p50": pct([u["ack_s"] for u in ups], 50),
+                         "p95": pct([u["ack_s"] for u in ups], 95)},
+        "record_to_estimate_s": {
+            "definition": "202 -> first GET .../estimate whose data.train/validation lists "
+                          "the record (client time, polled every 0.5 s)",
+            "n": len(in_data), "not_seen": len(ups) - len(in_data),
+            "p50": pct(in_data, 50), "p95": pct(in_data, 95),
+            "max": max(in_data) if in_data else None,
+            "published_p50": pct(published, 50), "published_p95": pct(published, 95)},
+        "record_to_monitored_s": {
+            "definition": "202 -> first estimate whose monitoring.processed_index >= the "
+                          "record's index (its per-record fit is in the headline)",
+            "n": len(monitored), "not_seen": len(ups) - len(monitored),
+            "p50": pct(monitored, 50), "p95": pct(monitored, 95)},
+        "max_update_gap_s": max(gaps) if gaps else None,
+        "median_max_gap_s": statistics.median(gaps) if gaps else None,
+        "min_updates_per_system": min(updates) if updates else 0,
+        "idle_share": obs.get("idle", 0) / n_obs,
+        "states_end": r["states_end"], "converged_end": r["converged_end"],
+        "memory_mb": {
+            "base_rss": total(base), "peak_rss": total(peak),
+            "per_system_rss": (total(peak) - total(base)) / case.n,
+            "base_pss": total(base, "pss"), "end_pss": total(last_pss, "pss"),
+            "per_system_pss": (total(last_pss, "pss") - total(base, "pss")) / case.n,
+            "trainer_hosts": peak.get("trainer_hosts", 0),
+            "peak_by_group": {g: peak.get(f"{g}_rss_mb", 0.0) for g in GROUPS}},
+        "cpu": {
+            "cores": cpu_total / wall, "by_group_cores": {g: v / wall for g, v in cpu.items()},
+            "machine_busy_cores": r["machine_busy_cores"],
+            "cpu_s_per_epoch": cpu_total / epochs if epochs else None,
+            "cpu_s_per_record": cpu_total / len(ups) if ups else None},
+        "loadavg": {"start": r["loadavg_start"], "end": r["loadavg_end"]},
+        "server_log_errors": r["server_log_errors"],
+        "raw": {k: r[k] for k in ("epochs", "gaps", "uploads", "memory_samples", "memory_base",
+                                  "state_observations")},
+    }
+
+
+# ---------------------------------------------------------------------------- report
+def fnum(x: Any, spec: str = ".1f") -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+ROWS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
+    ("epochs/s (all systems)", lambda r: fnum(r["epochs_per_s"])),
+    ("epochs/s per system min", lambda r: fnum(r["epochs_per_s_per_system"]["min"], ".2f")),
+    ("record->estimate p50 [s]", lambda r: fnum(r["record_to_estimate_s"]["p50"])),
+    ("record->estimate p95 [s]", lambda r: fnum(r["record_to_estimate_s"]["p95"])),
+    ("  records seen / sent", lambda r: f"{r['record_to_estimate_s']['n']}/{r['records_sent']}"),
+    ("record->monitored p50 [s]", lambda r: fnum(r["record_to_monitored_s"]["p50"])),
+    ("  monitored / sent", lambda r: f"{r['record_to_monitored_s']['n']}/{r['records_sent']}"),
+    ("max gap between updates [s]", lambda r: fnum(r["max_update_gap_s"])),
+    ("upload 202 p95 [s]", lambda r: fnum(r["upload_ack_s"]["p95"], ".2f")),
+    ("memory base [MB]", lambda r: fnum(r["memory_mb"]["base_rss"], ".0f")),
+    ("memory per system RSS [MB]", lambda r: fnum(r["memory_mb"]["per_system_rss"], ".0f")),
+    ("memory per system PSS [MB]", lambda r: fnum(r["memory_mb"]["per_system_pss"], ".0f")),
+    ("trainer processes", lambda r: str(r["memory_mb"]["trainer_hosts"] or "1 (server)")),
+    ("CPU cores used", lambda r: fnum(r["cpu"]["cores"], ".2f")),
+    ("machine busy cores (all users)", lambda r: fnum(r["cpu"]["machine_busy_cores"], ".2f")),
+    ("CPU-s per epoch", lambda r: fnum(r["cpu"]["cpu_s_per_epoch"], ".3f")),
+    ("CPU-s per record", lambda r: fnum(r["cpu"]["cpu_s_per_record"], ".1f")),
+    ("idle share", lambda r: fnum(r["idle_share"], ".2f")),
+    ("load avg (1 min) start", lambda r: fnum(r["loadavg"]["start"][0], ".2f")),
+]
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    cols = sorted({(r["n_systems"], r["executor"]) for r in results if "error" not in r},
+                  key=lambda c: (c[0], c[1] != "threads"))
+    by = {(r["n_systems"], r["executor"]): r for r in results if "error" not in r}
+    head = [f"N={n} {ex}" for n, ex in cols]
+    w0 = max(len(name) for name, _ in ROWS)
+    lines = [" | ".join([" " * w0] + [f"{h:>14s}" for h in head])]
+    lines.append("-" * len(lines[0]))
+    for name, get in ROWS:
+        lines.append(" | ".join([f"{name:<{w0}s}"] + [f"{get(by[c]):>14s}" for c in cols]))
+    for r in results:
+        if "error" in r:
+            lines.append(f"{r['executor']} N={r['n_systems']}: FAILED - {r['error']}")
+    return "\n".join(lines)
+
+
+def must_show(results: list[dict[str, Any]], limit_s: float = 60.0) -> list[str]:
+    out = []
+    for r in results:
+        if "error" in r or r["n_systems"] < max(x["n_systems"] for x in results):
+            continue
+        gap = r["max_update_gap_s"]
+        ok = gap is not None and gap <= limit_s and r["all_trainers_started"]
+        out.append(f"{r['executor']} N={r['n_systems']}: every system's estimate updated at "
+                   f"least once per {limit_s:.0f} s: {'yes' if ok else 'NO'} "
+                   f"(longest gap {fnum(gap)} s)")
+    return out
+
+
+def machine() -> dict[str, Any]:
+    return {"cpus_logical": psutil.cpu_count(), "cpus_physical": psutil.cpu_count(False),
+            "memory_gib": psutil.virtual_memory().total / 2**30,
+            "processor": platform.processor() or platform.machine(),
+            "python": platform.python_version(), "date_utc": time.strftime("%Y-%m-%d %H:%M",
+                                                                           time.gmtime())}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--executor", choices=("threads", "ray", "both"), default="both")
+    ap.add_argument("--systems", default="1,4,16,64", help="comma-separated N")
+    ap.add_argument("--period", type=float, default=30.0,
+                    help="seconds between two records of one system")
+    ap.add_argument("--window", type=float, default=None,
+                    help="measurement window per case (default 120 + 3 N s)")
+    ap.add_argument("--grace", type=float, default=60.0,
+                    help="after the window, wait at most this for records not yet seen")
+    ap.add_argument("--node-cpus", type=int, default=4, help="logical CPUs per Ray node")
+    ap.add_argument("--quick", action="store_true",
+                    help="reduced: N=1,4, 45 s windows, a record every 15 s")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--logs", help="keep the server logs in this folder")
+    ap.add_argument("--json", help="also write the results here")
+    args = ap.parse_args()
+    systems = [int(x) for x in args.systems.split(",") if x.strip()]
+    period, window = args.period, args.window
+    if args.quick:
+        systems = [n for n in systems if n <= 4] or [1]
+        period, window = 15.0, window or 45.0
+    if not systems or min(systems) < 1 or period <= 0:
+        ap.error("--systems needs positive integers and --period must be > 0")
+    executors = ["threads", "ray"] if args.executor == "both" else [args.executor]
+    cases = [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
+    n_records = 2 + max(int(c.window_s / c.period_s) + 2 for c in cases)
+    t = time.perf_counter()
+    pool = record_pool(n_records, args.seed)
+    print(f"{len(pool)} LO-NO records simulated in {time.perf_counter() - t:.1f} s "
+          f"({len(pool[0]) / 1e6:.2f} MB CSV each); load average {os.getloadavg()}",
+          file=sys.stderr, flush=True)
+    progress = Progress(cases, args.grace)
+    results: list[dict[str, Any]] = []
+    for i, case in enumerate(cases):
+        progress.done = i
+        try:
+            res = run_case(case, pool, progress, args.grace, args.node_cpus,
+                           Path(args.logs) if args.logs else None)
+        except Exception as exc:  # noqa: BLE001 - one failed case must not lose the others
+            res = {"executor": case.executor, "n_systems": case.n,
+                   "error": f"{type(exc).__name__}: {exc}"[:2000]}
+        results.append(res)
+        progress.line(case, "done" if "error" not in res else f"FAILED: {res['error'][:200]}",
+                      0.0, True)
+        if args.json:  # after every case: a long run keeps what it measured
+            write_json(args.json, results, period, args)
+    print(f"\nFleet benchmark, LO-NO systems, one record per system every {period:g} s "
+          f"(staggered), {machine()['cpus_logical']} CPUs, {time.strftime('%Y-%m-%d %H:%M')} UTC")
+    print(table(results))
+    for line in must_show(results):
+        print(line)
+    return 1 if any("error" in r for r in results) else 0
+
+
+def write_json(path: str, results: list[dict[str, Any]], period: float,
+               args: argparse.Namespace) -> None:
+    Path(path).write_text(json.dumps({
+        "machine": machine(), "model": "LO-NO (examples/models/lono.toml)",
+        "period_s": period, "server_env": SERVER_ENV, "args": vars(args),
+        "results": results}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
