@@ -44,9 +44,10 @@ import statistics
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import psutil
@@ -75,14 +76,17 @@ class Case:
     n: int
     window_s: float
     period_s: float
+    sparse_records: int = 0     # > 0: the sparse-record run (run_sparse) instead
 
     @property
     def label(self) -> str:
-        return f"{self.executor} N={self.n}"
+        return f"{self.executor} " + ("sparse" if self.sparse_records else f"N={self.n}")
 
     def planned_s(self, grace_s: float) -> float:
         """A rough duration, for the ETA."""
         setup = 15 + 0.6 * self.n + (25 if self.executor == "ray" else 0)
+        if self.sparse_records:
+            return setup + 90 + 30 * self.sparse_records
         return setup + 20 + 1.5 * self.n + self.window_s + min(grace_s, 15)
 
 
@@ -198,34 +202,114 @@ def bounded_wait(cond: Callable[[], Any], timeout: float, every: float) -> Any:
 
 
 # ---------------------------------------------------------------------------- one case
-def run_case(case: Case, pool: list[bytes], progress: Progress, grace_s: float,
-             node_cpus: int, keep_logs: Path | None) -> dict[str, Any]:
-    names = [f"s{i:03d}" for i in range(case.n)]
+@dataclass
+class Running:
+    """A started service: its client, the meter of its processes, its memory before any system."""
+
+    client: SivaClient
+    meter: ProcessMeter
+    base_memory: dict[str, float]
+    log_errors: int = 0
+
+
+@contextmanager
+def running_service(executor: str, node_cpus: int, keep_logs: Path | None, tag: str,
+                    status: Callable[[str], None]) -> Iterator[Running]:
+    """The server (and with ``ray`` a fresh local cluster) for one case; stopped on exit,
+    its log checked for unhandled errors (and kept in ``keep_logs``)."""
     with tempfile.TemporaryDirectory(prefix="siva-fleet-") as tmp:
-        cluster = LocalRayCluster(node_cpus) if case.executor == "ray" else None
-        env = {**SERVER_ENV, "SIVA_EXECUTOR": case.executor}
-        if cluster is not None:
-            progress.line(case, "starting the Ray cluster", case.planned_s(grace_s), True)
-            env["SIVA_RAY_ADDRESS"] = cluster.start()
+        cluster = LocalRayCluster(node_cpus) if executor == "ray" else None
+        env = {**SERVER_ENV, "SIVA_EXECUTOR": executor}
         server = ServerProcess(Path(tmp) / "data", env, Path(tmp) / "server.log")
+        run: Running | None = None
         try:
+            if cluster is not None:
+                status("starting the Ray cluster")
+                server.env["SIVA_RAY_ADDRESS"] = cluster.start()
             server.start()
             meter = ProcessMeter(server.pid, cluster)
             time.sleep(2.0)
-            base = meter.memory(pss=True)
             with SivaClient(server.url, timeout=120) as client:
-                result = measure(case, client, meter, names, pool, progress, grace_s)
-            result["memory_base"] = base
+                run = Running(client, meter, meter.memory(pss=True))
+                yield run
         finally:
             server.stop()
             if cluster is not None:
                 cluster.stop()
-            log_text = server.log_text()
+            text = server.log_text()
             if keep_logs is not None:
                 keep_logs.mkdir(parents=True, exist_ok=True)
-                (keep_logs / f"server-{case.executor}-{case.n}.log").write_text(log_text)
-        result["server_log_errors"] = unhandled_errors(log_text)
+                (keep_logs / f"server-{executor}-{tag}.log").write_text(text)
+            if run is not None:
+                run.log_errors = unhandled_errors(text)
+
+
+def run_case(case: Case, pool: list[bytes], progress: Progress, grace_s: float,
+             node_cpus: int, keep_logs: Path | None) -> dict[str, Any]:
+    names = [f"s{i:03d}" for i in range(case.n)]
+    status = lambda what: progress.line(case, what, case.planned_s(grace_s), True)  # noqa: E731
+    with running_service(case.executor, node_cpus, keep_logs, str(case.n), status) as svc:
+        result = measure(case, svc.client, svc.meter, names, pool, progress, grace_s)
+        result["memory_base"] = svc.base_memory
+    result["server_log_errors"] = svc.log_errors
     return summarise(case, result)
+
+
+# ---------------------------------------------------------------------------- sparse records
+def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int,
+               keep_logs: Path | None) -> dict[str, Any]:
+    """The cost of one record when records are rare (the fleet's normal case): one system
+    is onboarded (register, a train and a validation record, until it idles: converged,
+    first ``best``, monitoring running), then each record is sent once the system idles
+    again, and the CPU of every process of the service is summed from the upload until the
+    system is idle again with the record fitted by the monitoring."""
+    executor, n_records = case.executor, case.sparse_records
+    status = lambda what: progress.line(case, what, case.planned_s(0), True)  # noqa: E731
+    with running_service(executor, node_cpus, keep_logs, "sparse", status) as svc:
+        c, meter = svc.client, svc.meter
+
+        def settled(index: int, epoch_before: int) -> dict[str, Any] | None:
+            e = c.estimate("cal")
+            mon = e.get("monitoring") or {}
+            ok = (e.get("state") == "idle" and e.get("epoch", 0) > epoch_before
+                  and (mon.get("processed_index") or -1) >= index)
+            return e if ok else None
+
+        cpu0, t0 = meter.cpu(), time.monotonic()
+        c.register("cal", LONO_SPEC)
+        c.upload("cal", pool[0], role="train")
+        ack = c.upload("cal", pool[1], role="validation")
+        status("onboarding one system (until converged, best, idle)")
+        est = bounded_wait(lambda: settled(int(ack["index"]), 0), 900, 1.0)
+        if est is None:
+            raise RuntimeError("the sparse-record system did not reach idle in 900 s")
+        onboarding = {"cpu_s": sum(ProcessMeter.cpu_delta(cpu0, meter.cpu()).values()),
+                      "wall_s": time.monotonic() - t0, "epochs": int(est["epoch"])}
+        cpu0 = meter.cpu()
+        time.sleep(15.0)
+        idle_cores = sum(ProcessMeter.cpu_delta(cpu0, meter.cpu()).values()) / 15.0
+        records = []
+        for k in range(n_records):
+            status(f"record {k + 1}/{n_records}")
+            before = int(est["epoch"])
+            cpu0, t0 = meter.cpu(), time.monotonic()
+            ack = c.upload("cal", pool[2 + k], role="train")
+            est = bounded_wait(lambda: settled(int(ack["index"]), before), 600, 0.5)
+            if est is None:
+                raise RuntimeError(f"record {k + 1} was not trained on and fitted in 600 s")
+            cpu = ProcessMeter.cpu_delta(cpu0, meter.cpu())
+            records.append({"cpu_s": sum(cpu.values()), "cpu_by_group_s": cpu,
+                            "wall_s": time.monotonic() - t0,
+                            "epochs": int(est["epoch"]) - before,
+                            "fit_s": (est.get("monitoring") or {}).get("seconds_per_record")})
+        memory = meter.memory(pss=True)
+    return {"executor": executor, "onboarding": onboarding, "idle_cores": idle_cores,
+            "records": records, "memory_base": svc.base_memory, "memory_end": memory,
+            "server_log_errors": svc.log_errors,
+            "cpu_s_per_record": statistics.median(r["cpu_s"] for r in records) if records else None,
+            "epochs_per_record": statistics.median(r["epochs"] for r in records) if records else None,
+            "wall_s_per_record": statistics.median(r["wall_s"] for r in records) if records else None,
+            "loadavg": os.getloadavg()}
 
 
 def measure(case: Case, client: SivaClient, meter: ProcessMeter, names: list[str],
@@ -486,10 +570,28 @@ def table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def marginal_memory(results: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """MB per added system, per executor: the slope of the peak RSS (and of the PSS) between
+    the smallest and the largest N (free of one-time costs such as torch's first use)."""
+    out = {}
+    for ex in sorted({r["executor"] for r in results if "error" not in r}):
+        rs = sorted((r for r in results if r["executor"] == ex and "error" not in r),
+                    key=lambda r: r["n_systems"])
+        if len(rs) < 2:
+            continue
+        a, b = rs[0], rs[-1]
+        dn = b["n_systems"] - a["n_systems"]
+        out[ex] = {"from_n": a["n_systems"], "to_n": b["n_systems"],
+                   "rss_mb_per_system": (b["memory_mb"]["peak_rss"] - a["memory_mb"]["peak_rss"]) / dn,
+                   "pss_mb_per_system": (b["memory_mb"]["end_pss"] - a["memory_mb"]["end_pss"]) / dn}
+    return out
+
+
 def must_show(results: list[dict[str, Any]], limit_s: float = 60.0) -> list[str]:
-    out = []
+    out: list[str] = []
+    largest = max((x["n_systems"] for x in results), default=0)
     for r in results:
-        if "error" in r or r["n_systems"] < max(x["n_systems"] for x in results):
+        if "error" in r or r["n_systems"] < largest:
             continue
         gap = r["max_update_gap_s"]
         ok = gap is not None and gap <= limit_s and r["all_trainers_started"]
@@ -520,6 +622,8 @@ def main() -> int:
     ap.add_argument("--node-cpus", type=int, default=4, help="logical CPUs per Ray node")
     ap.add_argument("--quick", action="store_true",
                     help="reduced: N=1,4, 45 s windows, a record every 15 s")
+    ap.add_argument("--sparse-records", type=int, default=3,
+                    help="records of the sparse-record run per executor (0: none)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--logs", help="keep the server logs in this folder")
     ap.add_argument("--json", help="also write the results here")
@@ -529,11 +633,15 @@ def main() -> int:
     if args.quick:
         systems = [n for n in systems if n <= 4] or [1]
         period, window = 15.0, window or 45.0
+        args.sparse_records = min(args.sparse_records, 2)
     if not systems or min(systems) < 1 or period <= 0:
         ap.error("--systems needs positive integers and --period must be > 0")
     executors = ["threads", "ray"] if args.executor == "both" else [args.executor]
-    cases = [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
-    n_records = 2 + max(int(c.window_s / c.period_s) + 2 for c in cases)
+    cases = [Case(ex, 1, 0.0, 0.0, args.sparse_records) for ex in executors
+             if args.sparse_records > 0]
+    cases += [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
+    n_records = 2 + max([int(c.window_s / c.period_s) + 2 for c in cases if not c.sparse_records]
+                        + [args.sparse_records])
     t = time.perf_counter()
     pool = record_pool(n_records, args.seed)
     print(f"{len(pool)} LO-NO records simulated in {time.perf_counter() - t:.1f} s "
@@ -541,32 +649,61 @@ def main() -> int:
           file=sys.stderr, flush=True)
     progress = Progress(cases, args.grace)
     results: list[dict[str, Any]] = []
+    sparse: list[dict[str, Any]] = []
+    logs = Path(args.logs) if args.logs else None
     for i, case in enumerate(cases):
         progress.done = i
         try:
-            res = run_case(case, pool, progress, args.grace, args.node_cpus,
-                           Path(args.logs) if args.logs else None)
+            if case.sparse_records:
+                res = run_sparse(case, pool, progress, args.node_cpus, logs)
+            else:
+                res = run_case(case, pool, progress, args.grace, args.node_cpus, logs)
         except Exception as exc:  # noqa: BLE001 - one failed case must not lose the others
             res = {"executor": case.executor, "n_systems": case.n,
                    "error": f"{type(exc).__name__}: {exc}"[:2000]}
-        results.append(res)
+        (sparse if case.sparse_records else results).append(res)
         progress.line(case, "done" if "error" not in res else f"FAILED: {res['error'][:200]}",
                       0.0, True)
         if args.json:  # after every case: a long run keeps what it measured
-            write_json(args.json, results, period, args)
+            write_json(args.json, results, sparse, period, args)
     print(f"\nFleet benchmark, LO-NO systems, one record per system every {period:g} s "
           f"(staggered), {machine()['cpus_logical']} CPUs, {time.strftime('%Y-%m-%d %H:%M')} UTC")
     print(table(results))
+    for ex, m in marginal_memory(results).items():
+        print(f"{ex}: each added system costs {m['rss_mb_per_system']:.0f} MB RSS "
+              f"({m['pss_mb_per_system']:.0f} MB PSS), N={m['from_n']} -> {m['to_n']}")
     for line in must_show(results):
         print(line)
-    return 1 if any("error" in r for r in results) else 0
+    if sparse:
+        print("\nSparse records (one system; each record sent once it idles; CPU of every "
+              "process of the service from the upload until idle again with the record fitted):")
+        print(sparse_table(sparse))
+    return 1 if any("error" in r for r in results + sparse) else 0
 
 
-def write_json(path: str, results: list[dict[str, Any]], period: float,
-               args: argparse.Namespace) -> None:
+def sparse_table(sparse: list[dict[str, Any]]) -> str:
+    lines = []
+    for r in sparse:
+        if "error" in r:
+            lines.append(f"  {r['executor']}: FAILED - {r['error']}")
+            continue
+        ob = r["onboarding"]
+        fits = [x["fit_s"] for x in r["records"] if x["fit_s"] is not None]
+        lines.append(
+            f"  {r['executor']:7s}: onboarding {ob['cpu_s']:.0f} CPU-s ({ob['wall_s']:.0f} s, "
+            f"{ob['epochs']} epochs); idle {r['idle_cores']:.3f} cores; per record "
+            f"{fnum(r['cpu_s_per_record'])} CPU-s, {fnum(r['epochs_per_record'], '.0f')} epochs, "
+            f"{fnum(r['wall_s_per_record'])} s to idle (median of {len(r['records'])}); "
+            f"monitoring fit {fnum(statistics.median(fits) if fits else None)} s")
+    return "\n".join(lines)
+
+
+def write_json(path: str, results: list[dict[str, Any]], sparse: list[dict[str, Any]],
+               period: float, args: argparse.Namespace) -> None:
     Path(path).write_text(json.dumps({
         "machine": machine(), "model": "LO-NO (examples/models/lono.toml)",
         "period_s": period, "server_env": SERVER_ENV, "args": vars(args),
+        "marginal_memory": marginal_memory(results), "sparse": sparse,
         "results": results}, indent=1) + "\n")
 
 
