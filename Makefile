@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test test-all test-browser test-reliability bench clean
+.PHONY: install run test test-all test-browser test-reliability test-ray bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -33,6 +33,19 @@ test-browser: $(STAMP)
 # the reliability suite, slow parts included (tmpfs tests need root; see docs/reliability.md)
 test-reliability: $(STAMP)
 	$(BIN)/python -m pytest -q -m '' tests/reliability
+
+# the service's API tests with SIVA_EXECUTOR=ray on a local two-node Ray cluster (loopback),
+# plus the Ray executor's own tests (actor kill -9, placement); docs/fleet.md
+RAY_TESTS := tests/service/test_api.py tests/service/test_convergence.py \
+	tests/service/test_restart.py tests/service/test_replay.py tests/service/test_bad_input.py \
+	tests/ray
+test-ray: $(STAMP)
+	$(BIN)/pip install -q 'ray==2.60.0'
+	scripts/ray-local-cluster.sh stop
+	scripts/ray-local-cluster.sh start
+	SIVA_EXECUTOR=ray SIVA_RAY_ADDRESS=127.0.0.1:$${SIVA_RAY_PORT:-6390} \
+	  $(BIN)/python -m pytest -q -m 'not slow' $(RAY_TESTS); \
+	  rc=$$?; scripts/ray-local-cluster.sh stop; exit $$rc
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py

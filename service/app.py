@@ -31,7 +31,7 @@ from .limits import LimitError, check_sampling_rate, check_structure
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
 from .uploads import parse_upload
-from .worker import SystemWorker
+from .executor import TrainerHandle, make_executor
 
 log = logging.getLogger("siva.service")
 
@@ -71,7 +71,8 @@ class SivaService:
         self.store = Store(settings.data_dir, auto_validation_every=settings.auto_validation_every)
         self.events: Any = _NoEvents()
         self.structures: dict[str, Structure] = {}
-        self.workers: dict[str, SystemWorker] = {}
+        self.workers: dict[str, TrainerHandle] = {}
+        self.executor: Any = None
         self.broken: dict[str, str] = {}
         self._lock = threading.Lock()
         # supervision: a trainer thread that died is replaced (from its checkpoint) after
@@ -87,6 +88,7 @@ class SivaService:
 
             torch.set_num_threads(self.settings.torch_threads)
         self.events = _make_event_log(self.settings)
+        self.executor = make_executor(self.settings, self.store, self.events)
         try:  # import torch and the trainer now, not inside the first PUT
             from siva_core import SivaTrainer  # noqa: F401
         except Exception:  # noqa: BLE001 - the workers report it per system
@@ -112,13 +114,8 @@ class SivaService:
         self._stopping.set()
         with self._lock:
             workers = list(self.workers.values())
-        for w in workers:
-            w._stop.set()
-            w._wake.set()
-        deadline = time.monotonic() + self.settings.stop_timeout_s
-        for w in workers:
-            w.stop(timeout=max(0.0, deadline - time.monotonic()))
-        late = [w.name for w in workers if w.alive]
+        late = self.executor.stop_all(workers, self.settings.stop_timeout_s) \
+            if self.executor is not None else []
         if late:
             log.warning("stopping without waiting for the trainer(s) of %s", ", ".join(late))
         self.events.close()
@@ -130,10 +127,10 @@ class SivaService:
             with self._lock:
                 items = list(self.workers.items())
             for name, w in items:
-                if not _died(w):
+                if not w.died:
                     continue
                 since, restarts, _ = self._dead.get(name, (time.monotonic(), 0, ""))
-                why = f"trainer thread of {name!r} died ({w._error or 'unexpected exit'})"
+                why = f"trainer thread of {name!r} died ({w.error or 'unexpected exit'})"
                 self._dead[name] = (since, restarts, why)
                 if time.monotonic() - since < min(60.0, 2.0 * 2 ** restarts):
                     continue
@@ -157,11 +154,15 @@ class SivaService:
         with self._lock:
             items = list(self.workers.items())
         for name, w in items:
-            if w._stop.is_set():
+            if w.stopping:
                 continue
-            if _died(w):
+            if w.died:
                 problems.append(f"system {name!r}: trainer thread is dead "
-                                f"({w._error or 'unexpected exit'}); restarting")
+                                f"({w.error or 'unexpected exit'}); restarting")
+                continue
+            other = w.problem()
+            if other:
+                problems.append(other)
                 continue
             beat = getattr(w, "heartbeat", None)
             if beat is not None and now - beat > self.settings.stuck_after_s:
@@ -173,7 +174,7 @@ class SivaService:
         return problems
 
     def _start_worker(self, name: str, structure: Structure) -> None:
-        w = SystemWorker(name, structure, self.store, self.settings, self.events)
+        w = self.executor.trainer(name, structure)
         with self._lock:
             self.workers[name] = w
         w.start()
@@ -185,7 +186,7 @@ class SivaService:
             log.exception("event log %s failed", method)
 
     # ------------------------------------------------------------------ operations
-    def worker(self, name: str) -> SystemWorker:
+    def worker(self, name: str) -> TrainerHandle:
         w = self.workers.get(name)
         if w is None:
             if name in self.broken:
@@ -251,6 +252,7 @@ class SivaService:
                 self.workers.pop(name, None)
             self.structures.pop(name, None)
             self.broken.pop(name, None)
+        self.executor.removed(name)
         self._dead.pop(name, None)
 
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
@@ -293,13 +295,6 @@ class SivaService:
             return self.store.counts(name)
         except UnknownSystem as exc:
             raise ApiError(404, str(exc)) from None
-
-
-def _died(w: SystemWorker) -> bool:
-    """The trainer thread was started and ended without being asked to stop (a worker still
-    restoring its checkpoint in ``start`` has not started its thread yet: not dead)."""
-    t = w._thread
-    return t.ident is not None and not t.is_alive() and not w._stop.is_set()
 
 
 def _storage_detail(what: str, exc: OSError) -> str:

@@ -91,7 +91,8 @@ async def healthz(request: Request) -> Response:
     problems = svc.health_problems()
     body = {"status": "ok" if not problems else "unhealthy", "systems": len(svc.workers),
             "workers_alive": sum(w.alive for w in list(svc.workers.values())),
-            "problems": problems}
+            "problems": problems,
+            "executor": svc.executor.describe() if svc.executor is not None else None}
     return JSONResponse(body, status_code=503 if problems else 200)
 
 

@@ -193,6 +193,9 @@ class Health(_Open):
     workers_alive: int
     problems: list[str] = Field(default_factory=list,
                                 description="why the service is unhealthy (503), one per problem")
+    executor: dict[str, Any] | None = Field(
+        None, description="where the trainers run: threads, or Ray trainer hosts with their "
+                          "process, node, systems and restarts (docs/fleet.md)")
 
 
 class ErrorDetail(BaseModel):

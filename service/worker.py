@@ -52,7 +52,7 @@ log = logging.getLogger("siva.service.worker")
 #: ensemble epochs on the current data set needed before a refinement starts from them
 REFINE_MIN_SAMPLES = 10
 
-__all__ = ["SystemWorker", "default_trainer", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
+__all__ = ["SystemWorker", "default_trainer", "base_snapshot", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
            # moved to their own modules; re-exported for existing imports
            "parse_upload", "processing_for", "estimate_view", "estimate_parameters", "jsonable"]
 
@@ -149,10 +149,14 @@ class SystemWorker:
         if self._refiner is not None:
             self._refiner.poke()
 
-    def stop(self, timeout: float = 60.0) -> None:
-        """Stop after the current epoch; the thread writes a final checkpoint."""
+    def request_stop(self) -> None:
+        """Ask the threads to stop without waiting (``stop`` waits)."""
         self._stop.set()
         self._wake.set()
+
+    def stop(self, timeout: float = 60.0) -> None:
+        """Stop after the current epoch; the thread writes a final checkpoint."""
+        self.request_stop()
         t0 = time.monotonic()
         if self._refiner is not None:
             self._refiner.request_stop()
@@ -164,6 +168,25 @@ class SystemWorker:
     @property
     def alive(self) -> bool:
         return self._thread.is_alive()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    @property
+    def died(self) -> bool:
+        """The trainer thread was started and ended without being asked to stop (a worker
+        still restoring its checkpoint in ``start`` has not started its thread yet)."""
+        t = self._thread
+        return t.ident is not None and not t.is_alive() and not self._stop.is_set()
+
+    @property
+    def error(self) -> str | None:
+        return self._error
+
+    def problem(self) -> str | None:
+        """Why this trainer is unhealthy beyond death, stalls and checkpoints (None)."""
+        return None
 
     def snapshot(self) -> dict[str, Any]:
         """The latest published snapshot (immutable by convention: never mutated)."""
@@ -406,10 +429,7 @@ class SystemWorker:
 
     # ------------------------------------------------------------------ snapshots
     def _base_snapshot(self) -> dict[str, Any]:
-        return {"system": self.name, "state": self._state, "epoch": self.epoch,
-                "converged": False, "converged_at": None, "parameters": {},
-                "estimate_source": None, "discriminator": {}, "error": self._error,
-                "time": time.time()}
+        return base_snapshot(self.name, self._state, self.epoch, self._error)
 
     def _estimate(self) -> tuple[dict[str, Any], str | None]:
         return estimate_parameters(self.structure, self.trainer)
@@ -630,6 +650,14 @@ class SystemWorker:
             return
         self.checkpoint_error = None
         self.checkpoint_epoch = int(self.trainer.epoch)
+
+
+def base_snapshot(name: str, state: str, epoch: int = 0,
+                  error: str | None = None) -> dict[str, Any]:
+    """The keys every snapshot has, before any estimate exists."""
+    return {"system": name, "state": state, "epoch": epoch, "converged": False,
+            "converged_at": None, "parameters": {}, "estimate_source": None,
+            "discriminator": {}, "error": error, "time": time.time()}
 
 
 def default_trainer(structure: Structure, settings: Settings) -> Any:

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from service import app as app_mod
+from service import executor as executor_mod
 from service.app import SivaService
 from service.settings import Settings
 
@@ -30,11 +30,11 @@ def service_with(tmp_path, monkeypatch):
     made: list[SivaService] = []
 
     def make(worker_run, **settings):
-        class Worker(app_mod.SystemWorker):
+        class Worker(executor_mod.SystemWorker):
             def _run(self):
                 worker_run(self, super()._run)
 
-        monkeypatch.setattr(app_mod, "SystemWorker", Worker)
+        monkeypatch.setattr(executor_mod, "SystemWorker", Worker)
         svc = SivaService(Settings(data_dir=tmp_path / "data", refine_every_s=0, **settings))
         svc.start()
         made.append(svc)

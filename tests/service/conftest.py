@@ -36,6 +36,10 @@ TEST_ENV = {
 }
 
 
+#: settings a test run may choose for every server (which executor runs the trainers)
+PASS_THROUGH = {"SIVA_EXECUTOR", "SIVA_SHARED_DATA"}
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -81,7 +85,10 @@ class Server:
         self.data_dir = Path(data_dir)
         self.port = free_port()
         self.base_url = f"http://127.0.0.1:{self.port}"
-        self.env = {k: v for k, v in os.environ.items() if not k.startswith("SIVA_")}
+        # the executor under test passes through (`make test-ray`: SIVA_EXECUTOR=ray and
+        # the local cluster's SIVA_RAY_ADDRESS); every other SIVA_* setting is the test's
+        self.env = {k: v for k, v in os.environ.items()
+                    if not k.startswith("SIVA_") or k in PASS_THROUGH or k.startswith("SIVA_RAY_")}
         self.env.update(TEST_ENV)
         self.env.update(env or {})
         self.token = self.env.get("SIVA_API_TOKEN")

@@ -72,7 +72,8 @@ def clean_run(data_dir: Path, epochs: int = 60, change_at: int = 20) -> Path:
     from service.demo import ServerThread
     from service.settings import Settings
 
-    st = Settings(data_dir=data_dir, snapshot_every=5, checkpoint_every_s=3600)
+    # from_env: `make test-ray` runs this live part with SIVA_EXECUTOR=ray
+    st = Settings.from_env(data_dir=data_dir, snapshot_every=5, checkpoint_every_s=3600)
     with ServerThread(st) as url, SivaClient(url) as c:
         c.register("duffing", SPEC_TOML)
         c.upload("duffing", decimated("train_v5.csv"), role="train")

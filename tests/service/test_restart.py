@@ -2,6 +2,7 @@
 training resumes from the checkpoint; the replay buffer is rebuilt identically."""
 from __future__ import annotations
 
+import re
 import time
 
 from service.store import RecordingMeta, ReplayBuffer
@@ -102,4 +103,5 @@ def test_kill_9_and_restart(make_server, spec_of, duffing, linear, oscillator, p
         assert r.status_code == 202 and r.json()["index"] == 2
     assert time.monotonic() - t0 < 200
     srv.stop()  # graceful: writes a final checkpoint
-    assert "resumed from checkpoint" in srv.log_text()
+    # threads: the trainers restarted with the front; ray: the detached actors trained on
+    assert re.search("resumed from checkpoint|found running", srv.log_text())
