@@ -11,6 +11,7 @@ trainer and the fixed cost of running Ray at all scale differently in a projecti
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -118,8 +119,11 @@ class LocalRayCluster:
         return self.address
 
     def stop(self) -> None:
+        """Stop this cluster only (the script kills the processes under its temp dir),
+        then remove the temp dir (sessions, logs, spilled objects)."""
         subprocess.run(["bash", str(CLUSTER_SCRIPT), "stop"], env=self.env, cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
+        shutil.rmtree(self.temp_dir, ignore_errors=True)
 
     def processes(self) -> list[psutil.Process]:
         """Every process of this cluster: those naming its temp dir, and their descendants."""
