@@ -77,6 +77,7 @@ class Case:
     window_s: float
     period_s: float
     sparse_records: int = 0     # > 0: the sparse-record run (run_sparse) instead
+    prefill: int = 2            # sparse run: records stored before onboarding
 
     @property
     def label(self) -> str:
@@ -86,7 +87,7 @@ class Case:
         """A rough duration, for the ETA."""
         setup = 15 + 0.6 * self.n + (25 if self.executor == "ray" else 0)
         if self.sparse_records:
-            return setup + 90 + 30 * self.sparse_records
+            return setup + 60 + 8 * self.prefill + (30 + 3 * self.prefill) * self.sparse_records
         return setup + 20 + 1.5 * self.n + self.window_s + min(grace_s, 15)
 
 
@@ -259,10 +260,13 @@ def run_case(case: Case, pool: list[bytes], progress: Progress, grace_s: float,
 def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int,
                keep_logs: Path | None) -> dict[str, Any]:
     """The cost of one record when records are rare (the fleet's normal case): one system
-    is onboarded (register, a train and a validation record, until it idles: converged,
-    first ``best``, monitoring running), then each record is sent once the system idles
-    again, and the CPU of every process of the service is summed from the upload until the
-    system is idle again with the record fitted by the monitoring."""
+    is onboarded (register, ``case.prefill`` records - every 4th validation - until it
+    idles: converged, first ``best``, every record fitted by the monitoring), then each
+    record is sent once the system idles again, and the CPU of every process of the
+    service is summed from the upload until the system is idle again with the record
+    fitted.  An epoch costs in proportion to the training records held (at most
+    SIVA_REPLAY_WINDOW + SIVA_REPLAY_RESERVOIR = 12), hence the prefill: 16 records (12 train,
+    4 validation) give a long-monitored structure's steady state."""
     executor, n_records = case.executor, case.sparse_records
     status = lambda what: progress.line(case, what, case.planned_s(0), True)  # noqa: E731
     with running_service(executor, node_cpus, keep_logs, "sparse", status) as svc:
@@ -277,9 +281,12 @@ def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int
 
         cpu0, t0 = meter.cpu(), time.monotonic()
         c.register("cal", LONO_SPEC)
-        c.upload("cal", pool[0], role="train")
-        ack = c.upload("cal", pool[1], role="validation")
-        status("onboarding one system (until converged, best, idle)")
+        n_pre = max(2, case.prefill)
+        for k in range(n_pre):  # every 4th validation; with fewer than 4, the last one
+            validation = k % 4 == 3 or (n_pre < 4 and k == n_pre - 1)
+            ack = c.upload("cal", pool[k], role="validation" if validation else "train")
+        status(f"onboarding one system with {n_pre} records (until converged, "
+               "best, every record fitted, idle)")
         est = bounded_wait(lambda: settled(int(ack["index"]), 0), 900, 1.0)
         if est is None:
             raise RuntimeError("the sparse-record system did not reach idle in 900 s")
@@ -293,7 +300,7 @@ def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int
             status(f"record {k + 1}/{n_records}")
             before = int(est["epoch"])
             cpu0, t0 = meter.cpu(), time.monotonic()
-            ack = c.upload("cal", pool[2 + k], role="train")
+            ack = c.upload("cal", pool[n_pre + k], role="train")
             est = bounded_wait(lambda: settled(int(ack["index"]), before), 600, 0.5)
             if est is None:
                 raise RuntimeError(f"record {k + 1} was not trained on and fitted in 600 s")
@@ -303,7 +310,7 @@ def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int
                             "epochs": int(est["epoch"]) - before,
                             "fit_s": (est.get("monitoring") or {}).get("seconds_per_record")})
         memory = meter.memory(pss=True)
-    return {"executor": executor, "onboarding": onboarding, "idle_cores": idle_cores,
+    return {"executor": executor, "prefill": n_pre, "onboarding": onboarding, "idle_cores": idle_cores,
             "records": records, "memory_base": svc.base_memory, "memory_end": memory,
             "server_log_errors": svc.log_errors,
             "cpu_s_per_record": statistics.median(r["cpu_s"] for r in records) if records else None,
@@ -624,24 +631,30 @@ def main() -> int:
                     help="reduced: N=1,4, 45 s windows, a record every 15 s")
     ap.add_argument("--sparse-records", type=int, default=3,
                     help="records of the sparse-record run per executor (0: none)")
+    ap.add_argument("--sparse-prefill", type=int, default=16,
+                    help="records stored before the sparse run's onboarding (16: a full "
+                         "replay buffer, 12 train + 4 validation)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--logs", help="keep the server logs in this folder")
     ap.add_argument("--json", help="also write the results here")
     args = ap.parse_args()
-    systems = [int(x) for x in args.systems.split(",") if x.strip()]
+    systems = [] if args.systems == "none" else [int(x) for x in args.systems.split(",")
+                                                  if x.strip()]
     period, window = args.period, args.window
     if args.quick:
         systems = [n for n in systems if n <= 4] or [1]
         period, window = 15.0, window or 45.0
         args.sparse_records = min(args.sparse_records, 2)
-    if not systems or min(systems) < 1 or period <= 0:
-        ap.error("--systems needs positive integers and --period must be > 0")
+        args.sparse_prefill = 2
+    if (systems and min(systems) < 1) or period <= 0 or not (systems or args.sparse_records):
+        ap.error("--systems needs positive integers (or none, with --sparse-records > 0) "
+                 "and --period must be > 0")
     executors = ["threads", "ray"] if args.executor == "both" else [args.executor]
-    cases = [Case(ex, 1, 0.0, 0.0, args.sparse_records) for ex in executors
-             if args.sparse_records > 0]
+    cases = [Case(ex, 1, 0.0, 0.0, args.sparse_records, args.sparse_prefill)
+             for ex in executors if args.sparse_records > 0]
     cases += [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
-    n_records = 2 + max([int(c.window_s / c.period_s) + 2 for c in cases if not c.sparse_records]
-                        + [args.sparse_records])
+    n_records = max([2 + int(c.window_s / c.period_s) + 2 for c in cases if not c.sparse_records]
+                    + [max(2, c.prefill) + c.sparse_records for c in cases if c.sparse_records])
     t = time.perf_counter()
     pool = record_pool(n_records, args.seed)
     print(f"{len(pool)} LO-NO records simulated in {time.perf_counter() - t:.1f} s "
@@ -677,6 +690,7 @@ def main() -> int:
     if sparse:
         print("\nSparse records (one system; each record sent once it idles; CPU of every "
               "process of the service from the upload until idle again with the record fitted):")
+        print("  (an epoch costs in proportion to the training records held: at most 12)")
         print(sparse_table(sparse))
     return 1 if any("error" in r for r in results + sparse) else 0
 
@@ -690,7 +704,8 @@ def sparse_table(sparse: list[dict[str, Any]]) -> str:
         ob = r["onboarding"]
         fits = [x["fit_s"] for x in r["records"] if x["fit_s"] is not None]
         lines.append(
-            f"  {r['executor']:7s}: onboarding {ob['cpu_s']:.0f} CPU-s ({ob['wall_s']:.0f} s, "
+            f"  {r['executor']:7s} ({r.get('prefill', 2)} records first): onboarding "
+            f"{ob['cpu_s']:.0f} CPU-s ({ob['wall_s']:.0f} s, "
             f"{ob['epochs']} epochs); idle {r['idle_cores']:.3f} cores; per record "
             f"{fnum(r['cpu_s_per_record'])} CPU-s, {fnum(r['epochs_per_record'], '.0f')} epochs, "
             f"{fnum(r['wall_s_per_record'])} s to idle (median of {len(r['records'])}); "
