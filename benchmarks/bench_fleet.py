@@ -19,9 +19,10 @@ Measured per executor and N, over the window:
   data of a published snapshot; polled every 0.5 s, so up to 0.5 s late) - p50, p95;
   also the same to the first estimate whose monitoring has fitted it
   (``monitoring.processed_index`` >= the record's index: the headline includes it);
-* the longest gap between successive published snapshots of any system (the snapshot's
-  own ``time``, from /metrics every 2 s), not counting time a system sat idle or waiting
-  for data; must be <= 60 s with 64 systems;
+* the longest gap between successive published snapshots of any system (their own
+  ``time``, from the drift report's history at the end of the window: exact), not
+  counting time a system was seen idle or waiting for data (GET /v1/systems every 2 s);
+  must be <= 60 s with 64 systems;
 * memory: RSS (and PSS) of the server plus, with Ray, the trainer-host and Ray daemon
   processes; the base before any system, then (total - base) / N per system;
 * CPU: CPU seconds of those processes / window (cores in use), per epoch and per record.
@@ -39,7 +40,6 @@ import json
 import math
 import os
 import platform
-import re
 import statistics
 import sys
 import tempfile
@@ -65,7 +65,9 @@ from service.demo import LONO_SPEC, LONO_TRUTH, lono_structure, simulate_impact,
 #: states in which no new snapshot is expected (not counted as a gap)
 PAUSED = {"idle", "waiting_for_data", "waiting_for_validation", "starting", "error"}
 #: server settings of every run (everything else: the service's defaults)
-SERVER_ENV = {"SIVA_LOG_LEVEL": "WARNING", "SIVA_TORCH_THREADS": "1"}
+SNAPSHOT_EVERY = 5              # the service's default, stated explicitly
+SERVER_ENV = {"SIVA_LOG_LEVEL": "WARNING", "SIVA_TORCH_THREADS": "1",
+              "SIVA_SNAPSHOT_EVERY": str(SNAPSHOT_EVERY)}
 METRICS_EVERY_S = 2.0
 UPLOADERS = 16                  # concurrent uploads (one client each)
 PENDING_POLL_S = 0.5
@@ -110,29 +112,24 @@ class Upload:
     monitored_s: float | None = None        # first seen fitted by the monitoring
 
 
-@dataclass
-class GapTracker:
-    """Longest time between successive published snapshots of one system, not counting
-    intervals in which it was seen paused (idle, waiting for data)."""
+def snapshot_gaps(times: list[float], t0: float, t_end: float,
+                  paused_at: list[float]) -> dict[str, float]:
+    """The longest time without a newly published snapshot of one system over [t0, t_end].
 
-    last_t: float | None = None
-    paused: bool = False
-    max_gap: float = 0.0
-    updates: int = 0
-
-    def observe(self, snap_t: float | None, state: str | None) -> None:
-        if snap_t is not None and snap_t != self.last_t:
-            if self.last_t is not None and not self.paused:
-                self.max_gap = max(self.max_gap, snap_t - self.last_t)
-                self.updates += 1
-            self.last_t = snap_t
-            self.paused = False
-        if state in PAUSED:
-            self.paused = True
-
-    def close(self, t_end: float) -> None:
-        if self.last_t is not None and not self.paused:
-            self.max_gap = max(self.max_gap, t_end - self.last_t)
+    ``times``: every snapshot's own ``time`` (the drift report's history: exact, whatever
+    the benchmark's polling); ``paused_at``: when the system was seen idle or waiting for
+    data - no snapshot is due then, so an interval containing such a moment is no gap.  The
+    interval from the last snapshot to ``t_end`` counts too (a system that stopped
+    updating must not hide)."""
+    before = [t for t in times if t <= t0]
+    inside = sorted(t for t in times if t0 < t <= t_end)
+    prev = max(before) if before else t0
+    gaps = []
+    for t in inside + [t_end]:
+        if not any(prev <= p <= t for p in paused_at):
+            gaps.append(t - prev)
+        prev = t
+    return {"max_gap": max(gaps, default=0.0), "updates": len(inside)}
 
 
 @dataclass
@@ -175,20 +172,6 @@ def record_pool(n: int, seed: int) -> list[bytes]:
 
 
 # ---------------------------------------------------------------------------- observing
-METRIC_RE = re.compile(r'^(siva_epoch|siva_snapshot_timestamp_seconds)\{system="([^"]+)"\} (\S+)$')
-
-
-def scrape(client: SivaClient) -> dict[str, dict[str, float]]:
-    """siva_epoch and siva_snapshot_timestamp_seconds per system from GET /metrics."""
-    text = client._http.get("/metrics").text
-    out: dict[str, dict[str, float]] = {}
-    for line in text.splitlines():
-        m = METRIC_RE.match(line)
-        if m:
-            out.setdefault(m.group(2), {})[m.group(1)] = float(m.group(3))
-    return out
-
-
 def fleet_states(client: SivaClient) -> dict[str, dict[str, Any]]:
     """GET /v1/systems: state and epoch of every system, in one request."""
     return {s["name"]: s for s in client._http.get("/v1/systems").json()["systems"]}
@@ -428,7 +411,7 @@ class FleetWindow:
         self.pool, self.progress, self.grace_s = pool, progress, grace_s
         self.uploaders = uploaders
         self.failed: list[Upload] = []
-        self.gaps = {n: GapTracker() for n in names}
+        self.paused_at: dict[str, list[float]] = {n: [] for n in names}
         self.uploads: list[Upload] = []
         self.pending: dict[str, list[Upload]] = {n: [] for n in names}
         self.last_poll = {n: 0.0 for n in names}
@@ -461,8 +444,7 @@ class FleetWindow:
         t_end, wall = time.time(), time.monotonic() - m0
         cpu1, busy1, load1 = self.meter.cpu(), machine_busy_seconds(), os.getloadavg()
         states1 = self._observe()
-        for g in self.gaps.values():
-            g.close(t_end)
+        gaps = self._gaps(t0, t_end, states0, states1)
         self.mem_samples.append(self.meter.memory(pss=True))
         grace_end = time.monotonic() + self.grace_s
         while (now := time.monotonic()) < grace_end and (self.uploaders.in_flight() or any(
@@ -484,7 +466,7 @@ class FleetWindow:
             "converged_end": sum(bool(s.get("converged")) for s in states1.values()),
             "state_observations": self.state_obs,
             "uploads": [asdict(u) for u in self.uploads],
-            "gaps": {n: asdict(g) for n, g in self.gaps.items()},
+            "gaps": gaps,
             "cpu_s": ProcessMeter.cpu_delta(cpu0, cpu1),
             "machine_busy_cores": (busy1 - busy0) / wall,
             "loadavg_start": load0, "loadavg_end": load1,
@@ -512,12 +494,26 @@ class FleetWindow:
 
     def _observe(self) -> dict[str, dict[str, Any]]:
         """Snapshot times (/metrics) and states (/v1/systems) of every system."""
-        metrics, states = scrape(self.client), fleet_states(self.client)
+        states = fleet_states(self.client)
+        t_obs = time.time()
         for n in self.names:
             st = states.get(n, {}).get("state")
             self.state_obs[str(st)] = self.state_obs.get(str(st), 0) + 1
-            self.gaps[n].observe(metrics.get(n, {}).get("siva_snapshot_timestamp_seconds"), st)
+            if st in PAUSED:
+                self.paused_at[n].append(t_obs)
         return states
+
+    def _gaps(self, t0: float, t_end: float, states0: dict[str, dict[str, Any]],
+              states1: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
+        """Per system, from its drift report's history of published snapshots."""
+        out = {}
+        for n in self.names:
+            epochs = int(states1.get(n, {}).get("epoch", 0)) - int(states0.get(n, {}).get("epoch", 0))
+            limit = epochs // SNAPSHOT_EVERY + 50  # + idle publishes, + the one before t0
+            hist = self.client._http.get(f"/v1/systems/{n}/drift", params={"limit": limit}).json()
+            times = [float(e["time"]) for e in hist.get("history", []) if e.get("time")]
+            out[n] = snapshot_gaps(times, t0, t_end, self.paused_at[n])
+        return out
 
     def _poll_pending(self, streaming: bool) -> None:
         """GET .../estimate of systems with records not yet seen (every 0.5 s; every 2 s
