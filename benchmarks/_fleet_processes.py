@@ -130,7 +130,8 @@ class LocalRayCluster:
         roots = []
         for p in psutil.process_iter(["cmdline"]):
             cmd = " ".join(p.info.get("cmdline") or [])
-            if self.temp_dir + "/" in cmd or self.temp_dir + " " in cmd or cmd.endswith(self.temp_dir):
+            if (self.temp_dir + "/" in cmd or self.temp_dir + " " in cmd
+                    or cmd.endswith(self.temp_dir)):
                 roots.append(p)
         seen: dict[int, psutil.Process] = {}
         for p in roots:

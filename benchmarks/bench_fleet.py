@@ -28,7 +28,11 @@ Measured per executor and N, over the window:
 * CPU: CPU seconds of those processes / window (cores in use), per epoch and per record.
 
     python benchmarks/bench_fleet.py [--executor threads|ray|both] [--systems 1,4,16,64]
-           [--period 30] [--window S] [--quick] [--json FILE]
+           [--period 30] [--window S] [--snapshot-every 5] [--quick] [--json FILE]
+    python benchmarks/bench_fleet.py --systems none --sparse-prefill 16   # sparse records only
+
+Before the fleet cases, a sparse-record run per executor (``run_sparse``) measures the
+CPU of onboarding one system, of an idle system and of one record arriving at an idle one.
 
 Traffic goes to 127.0.0.1 only; every loop has a deadline.  Needs psutil (the test extra)
 and, for ``ray``, the ray extra (``pip install .[ray]``).
@@ -60,14 +64,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _fleet_processes import (GROUPS, LocalRayCluster, ProcessMeter, ServerProcess,  # noqa: E402
                               machine_busy_seconds, total, unhandled_errors)
 from clients import SivaClient, SivaClientError  # noqa: E402
-from service.demo import LONO_SPEC, LONO_TRUTH, lono_structure, simulate_impact, to_csv  # noqa: E402
+from service.demo import (LONO_SPEC, LONO_TRUTH, lono_structure, simulate_impact,  # noqa: E402
+                          to_csv)
 
 #: states in which no new snapshot is expected (not counted as a gap)
 PAUSED = {"idle", "waiting_for_data", "waiting_for_validation", "starting", "error"}
 #: server settings of every run (everything else: the service's defaults)
-SNAPSHOT_EVERY = 5              # the service's default, stated explicitly
 SERVER_ENV = {"SIVA_LOG_LEVEL": "WARNING", "SIVA_TORCH_THREADS": "1",
-              "SIVA_SNAPSHOT_EVERY": str(SNAPSHOT_EVERY)}
+              "SIVA_SNAPSHOT_EVERY": "5"}   # the service's default, stated (--snapshot-every)
 METRICS_EVERY_S = 2.0
 UPLOADERS = 16                  # concurrent uploads (one client each)
 PENDING_POLL_S = 0.5
@@ -346,12 +350,13 @@ def run_sparse(case: Case, pool: list[bytes], progress: Progress, node_cpus: int
                             "epochs": int(est["epoch"]) - before,
                             "fit_s": (est.get("monitoring") or {}).get("seconds_per_record")})
         memory = meter.memory(pss=True)
-    return {"executor": executor, "prefill": n_pre, "onboarding": onboarding, "idle_cores": idle_cores,
+    med = lambda key: statistics.median(r[key] for r in records) if records else None  # noqa: E731
+    return {"executor": executor, "prefill": n_pre, "onboarding": onboarding,
+            "idle_cores": idle_cores,
             "records": records, "memory_base": svc.base_memory, "memory_end": memory,
             "server_log_errors": svc.log_errors,
             "cpu_s_per_record": statistics.median(r["cpu_s"] for r in records) if records else None,
-            "epochs_per_record": statistics.median(r["epochs"] for r in records) if records else None,
-            "wall_s_per_record": statistics.median(r["wall_s"] for r in records) if records else None,
+            "epochs_per_record": med("epochs"), "wall_s_per_record": med("wall_s"),
             "loadavg": os.getloadavg()}
 
 
@@ -508,8 +513,10 @@ class FleetWindow:
         """Per system, from its drift report's history of published snapshots."""
         out = {}
         for n in self.names:
-            epochs = int(states1.get(n, {}).get("epoch", 0)) - int(states0.get(n, {}).get("epoch", 0))
-            limit = epochs // SNAPSHOT_EVERY + 50  # + idle publishes, + the one before t0
+            epochs = (int(states1.get(n, {}).get("epoch", 0))
+                      - int(states0.get(n, {}).get("epoch", 0)))
+            # + idle publishes, + the one before t0
+            limit = epochs // int(SERVER_ENV["SIVA_SNAPSHOT_EVERY"]) + 50
             hist = self.client._http.get(f"/v1/systems/{n}/drift", params={"limit": limit}).json()
             times = [float(e["time"]) for e in hist.get("history", []) if e.get("time")]
             out[n] = snapshot_gaps(times, t0, t_end, self.paused_at[n])
@@ -625,20 +632,24 @@ def fnum(x: Any, spec: str = ".1f") -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
+def acknowledged(r: dict[str, Any]) -> int:
+    return r.get("records_acknowledged", r["records_sent"])
+
+
 ROWS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
     ("epochs/s (all systems)", lambda r: fnum(r["epochs_per_s"])),
     ("epochs/s per system min", lambda r: fnum(r["epochs_per_s_per_system"]["min"], ".2f")),
     ("record->estimate p50 [s]", lambda r: fnum(r["record_to_estimate_s"]["p50"])),
     ("record->estimate p95 [s]", lambda r: fnum(r["record_to_estimate_s"]["p95"])),
     ("  records seen / acknowledged",
-     lambda r: f"{r['record_to_estimate_s']['n']}/{r.get('records_acknowledged', r['records_sent'])}"),
+     lambda r: f"{r['record_to_estimate_s']['n']}/{acknowledged(r)}"),
     ("  same, snapshot's own time p50",
      lambda r: fnum(r["record_to_estimate_s"]["published_p50"])),
     ("  same, snapshot's own time p95",
      lambda r: fnum(r["record_to_estimate_s"]["published_p95"])),
     ("record->monitored p50 [s]", lambda r: fnum(r["record_to_monitored_s"]["p50"])),
     ("  monitored / acknowledged",
-     lambda r: f"{r['record_to_monitored_s']['n']}/{r.get('records_acknowledged', r['records_sent'])}"),
+     lambda r: f"{r['record_to_monitored_s']['n']}/{acknowledged(r)}"),
     ("max gap between updates [s]", lambda r: fnum(r["max_update_gap_s"])),
     ("upload 202 p50 [s]", lambda r: fnum(r["upload_ack_s"]["p50"], ".2f")),
     ("upload 202 p95 [s]", lambda r: fnum(r["upload_ack_s"]["p95"], ".2f")),
@@ -683,8 +694,10 @@ def marginal_memory(results: list[dict[str, Any]]) -> dict[str, dict[str, float]
         a, b = rs[0], rs[-1]
         dn = b["n_systems"] - a["n_systems"]
         out[ex] = {"from_n": a["n_systems"], "to_n": b["n_systems"],
-                   "rss_mb_per_system": (b["memory_mb"]["peak_rss"] - a["memory_mb"]["peak_rss"]) / dn,
-                   "pss_mb_per_system": (b["memory_mb"]["end_pss"] - a["memory_mb"]["end_pss"]) / dn}
+                   "rss_mb_per_system": (b["memory_mb"]["peak_rss"]
+                                         - a["memory_mb"]["peak_rss"]) / dn,
+                   "pss_mb_per_system": (b["memory_mb"]["end_pss"]
+                                         - a["memory_mb"]["end_pss"]) / dn}
     return out
 
 
@@ -728,10 +741,13 @@ def main() -> int:
     ap.add_argument("--sparse-prefill", type=int, default=16,
                     help="records stored before the sparse run's onboarding (16: a full "
                          "replay buffer, 12 train + 4 validation)")
+    ap.add_argument("--snapshot-every", type=int, default=5,
+                    help="SIVA_SNAPSHOT_EVERY of the server: epochs between published estimates")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--logs", help="keep the server logs in this folder")
     ap.add_argument("--json", help="also write the results here")
     args = ap.parse_args()
+    SERVER_ENV["SIVA_SNAPSHOT_EVERY"] = str(max(1, args.snapshot_every))
     systems = [] if args.systems == "none" else [int(x) for x in args.systems.split(",")
                                                   if x.strip()]
     period, window = args.period, args.window
