@@ -8,8 +8,7 @@ each asking ``SIVA_RAY_CPUS_PER_ACTOR`` logical CPUs, spread over the cluster's 
 dir; a front that dies (kill -9) finds its actors again by name when it restarts.
 
 The front never blocks on an actor in a read: one poller thread fetches, every
-``SIVA_RAY_POLL_S``, each host's changed snapshots and drift reports and its queued event-log
-entries, which it writes to the MCAP log in order (acknowledging them on the next poll).
+``SIVA_RAY_POLL_S``, each host's changed snapshots and its queued event-log entries, which it writes to the MCAP log in order (acknowledging them on the next poll).
 A new actor incarnation (a restart) starts a new log segment for its systems, as a
 restarted trainer thread does, so ``siva replay`` stitches the segments.
 """
@@ -25,6 +24,7 @@ from siva_core import Structure
 
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
+from .errors import ApiError
 from .settings import Settings
 from .worker import base_snapshot
 
@@ -52,14 +52,25 @@ class RayTrainer:
         self.epoch = 0
         self.heartbeat = time.monotonic()
         self.checkpoint_error: str | None = None
+        self.start_error: str | None = None
 
     # ------------------------------------------------------------------ control
     def start(self) -> None:
-        """Start (or find) the system on its host, and fetch a first snapshot."""
+        """Start (or find) the system on its host and fetch a first snapshot, so the first
+        read after a restart already shows the resumed epoch.  Never raises: when the
+        cluster cannot take it now, /healthz says so and the poller tries again."""
         ray = self.executor.ray
-        host = self.executor.host(self.host_id)
-        self.generation = ray.get(host.add.remote(self.name), timeout=120)
-        first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
+        try:
+            host = self.executor.host(self.host_id)
+            self.generation = ray.get(host.add.remote(self.name), timeout=120)
+            first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
+        except Exception as exc:  # noqa: BLE001 - cluster down or full: retried
+            self.start_error = f"{type(exc).__name__}: {exc}"
+            log.error("%s: cannot start its trainer on Ray host %s (%s); retrying",
+                      self.name, self.host_id, self.start_error)
+            self.executor.retry_start(self)
+            return
+        self.start_error = None
         entry = first["systems"].get(self.name)
         if entry is not None:
             self.update(entry)
@@ -87,8 +98,12 @@ class RayTrainer:
 
     def reset_drift(self) -> dict[str, Any]:
         ray = self.executor.ray
-        report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
-                         timeout=120)
+        try:
+            report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
+                             timeout=120)
+        except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
+            raise ApiError(503, f"system {self.name!r}: its trainer actor is unavailable "
+                                f"({type(exc).__name__}); retry in a minute") from None
         self._drift = report
         return report
 
@@ -97,6 +112,14 @@ class RayTrainer:
         return self._snapshot
 
     def drift_report(self) -> dict[str, Any]:
+        """Fetched when asked (routes call this in a worker thread); the last copy while the
+        actor does not answer within 5 s."""
+        try:
+            ref = self.executor.host(self.host_id).drift_report.remote(self.name)
+            self._drift = self.executor.ray.get(ref, timeout=5)
+        except Exception as exc:  # noqa: BLE001 - restarting: the last copy will do
+            log.warning("%s: drift report not fetched (%s); the last copy is served",
+                        self.name, type(exc).__name__)
         return self._drift
 
     @property
@@ -116,6 +139,9 @@ class RayTrainer:
         return self._status.get("error")
 
     def problem(self) -> str | None:
+        if self.start_error:
+            return (f"system {self.name!r}: its trainer could not be started on Ray "
+                    f"({self.start_error}); retrying")
         down = self.executor.unreachable_for(self.host_id)
         if down is not None and down > UNREACHABLE_AFTER_S:
             return (f"system {self.name!r}: its trainer actor (host {self.host_id}) has not "
@@ -169,6 +195,7 @@ class RayExecutor:
         self._down_since: dict[str, float] = {}
         self._full: set[str] = set()
         self._restarts: dict[str, int] = {}
+        self._retry: dict[str, tuple[float, RayTrainer]] = {}  # name -> (when, handle)
         self._stop = threading.Event()
         self._poller = threading.Thread(target=self._poll_loop, name="siva-ray-poller",
                                         daemon=True)
@@ -273,8 +300,18 @@ class RayExecutor:
                 "namespace": self.settings.ray_namespace, "hosts": hosts}
 
     # ------------------------------------------------------------------ the poller
+    def retry_start(self, handle: RayTrainer) -> None:
+        """Poller: start ``handle`` again in 5 s (it could not be started now)."""
+        self._retry[handle.name] = (time.monotonic() + 5.0, handle)
+
     def _poll_loop(self) -> None:
         while not self._stop.wait(self.settings.ray_poll_s):
+            for name, (when, handle) in list(self._retry.items()):
+                if time.monotonic() >= when and self._handles.get(name) is handle:
+                    del self._retry[name]
+                    handle.start()  # re-queues itself on failure
+                elif self._handles.get(name) is not handle:
+                    self._retry.pop(name, None)
             try:
                 self.poll_once()
             except Exception:  # noqa: BLE001 - keep polling
