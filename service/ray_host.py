@@ -161,14 +161,11 @@ class TrainerHost:
 
     def stop_all(self, timeout: float) -> list[str]:
         """Stop every worker (final checkpoints) within ``timeout``; the late ones' names."""
+        from .worker import stop_workers
+
         with self._lock:
             workers = list(self.workers.values())
-        for w in workers:
-            w.request_stop()
-        deadline = time.monotonic() + timeout
-        for w in workers:
-            w.stop(timeout=max(0.0, deadline - time.monotonic()))
-        return [w.name for w in workers if w.alive]
+        return stop_workers(workers, timeout)
 
     # ------------------------------------------------------------------ the front's poll
     def poll(self, acked: dict[str, int], full: bool = False, only: str | None = None,
