@@ -32,6 +32,11 @@ log = logging.getLogger("siva.service.ray")
 
 #: a host unreachable this long is reported in /healthz (Ray is restarting it)
 UNREACHABLE_AFTER_S = 5.0
+#: drift reports: a copy younger than this is served as is; a read waits at most
+#: DRIFT_WAIT_S for a newer one; one read keeps the copy refreshed for DRIFT_WANTED_S
+DRIFT_FRESH_S = 2.0
+DRIFT_WAIT_S = 0.4
+DRIFT_WANTED_S = 60.0
 
 
 class RayTrainer:
@@ -53,6 +58,9 @@ class RayTrainer:
         self.heartbeat = time.monotonic()
         self.checkpoint_error: str | None = None
         self.start_error: str | None = None
+        self.drift_at = -1e9                     # time.monotonic() of the drift copy
+        self.drift_ref: Any = None               # a drift report on its way
+        self.drift_wanted_until = -1e9           # keep it fresh until then (it is read)
 
     # ------------------------------------------------------------------ control
     def start(self) -> None:
@@ -104,7 +112,7 @@ class RayTrainer:
         except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
             raise ApiError(503, f"system {self.name!r}: its trainer actor is unavailable "
                                 f"({type(exc).__name__}); retry in a minute") from None
-        self._drift = report
+        self._drift, self.drift_at = report, time.monotonic()
         return report
 
     # ------------------------------------------------------------------ reads
@@ -112,15 +120,40 @@ class RayTrainer:
         return self._snapshot
 
     def drift_report(self) -> dict[str, Any]:
-        """Fetched when asked (routes call this in a worker thread); the last copy while the
-        actor does not answer within 5 s."""
+        """The drift report, fetched on demand: a report holds up to SIVA_HISTORY_LIMIT
+        snapshots (about 1 MB), too much for every poll.  A read waits at most
+        ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S``, else gets the last copy;
+        the poller keeps a report that was read in the last minute fresh."""
+        now = time.monotonic()
+        self.drift_wanted_until = now + DRIFT_WANTED_S
+        if now - self.drift_at > DRIFT_FRESH_S:
+            self.request_drift()
+            self.collect_drift(timeout=DRIFT_WAIT_S)
+        return self._drift
+
+    def request_drift(self) -> None:
+        if self.drift_ref is None:
+            try:
+                self.drift_ref = self.executor.host(self.host_id).drift_report.remote(self.name)
+            except Exception:  # noqa: BLE001 - the host is restarting: the last copy
+                self.drift_ref = None
+
+    def collect_drift(self, timeout: float = 0.0) -> None:
+        """Take the requested report if it is there within ``timeout`` seconds."""
+        ref = self.drift_ref
+        if ref is None:
+            return
+        ray = self.executor.ray
         try:
-            ref = self.executor.host(self.host_id).drift_report.remote(self.name)
-            self._drift = self.executor.ray.get(ref, timeout=5)
+            ready, _ = ray.wait([ref], timeout=timeout)
+            if not ready:
+                return  # still coming: the poller collects it
+            self._drift = ray.get(ref)
+            self.drift_at = time.monotonic()
         except Exception as exc:  # noqa: BLE001 - restarting: the last copy will do
             log.warning("%s: drift report not fetched (%s); the last copy is served",
                         self.name, type(exc).__name__)
-        return self._drift
+        self.drift_ref = None
 
     @property
     def alive(self) -> bool:
@@ -314,8 +347,17 @@ class RayExecutor:
                     self._retry.pop(name, None)
             try:
                 self.poll_once()
+                self._refresh_drift()
             except Exception:  # noqa: BLE001 - keep polling
                 log.exception("polling the trainer hosts failed")
+
+    def _refresh_drift(self) -> None:
+        """Collect drift reports on their way; ask again for those read lately."""
+        now = time.monotonic()
+        for h in list(self._handles.values()):
+            h.collect_drift()
+            if h.drift_wanted_until > now and now - h.drift_at > DRIFT_FRESH_S:
+                h.request_drift()
 
     def poll_once(self) -> None:
         with self._lock:
