@@ -38,7 +38,7 @@ test-reliability: $(STAMP)
 # plus the Ray executor's own tests (actor kill -9, placement); docs/fleet.md
 RAY_TESTS := tests/service/test_api.py tests/service/test_convergence.py \
 	tests/service/test_restart.py tests/service/test_replay.py tests/service/test_bad_input.py \
-	tests/ray
+	tests/service/test_ray_executor.py
 test-ray: $(STAMP)
 	$(BIN)/pip install -q 'ray==2.60.0'
 	scripts/ray-local-cluster.sh stop

@@ -20,6 +20,11 @@ def _serve_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--data-dir", default="./siva-data")
     p.add_argument("--demo", action="store_true", help="stream a built-in simulated LO-NO rig")
+    p.add_argument("--executor", choices=("threads", "ray"), default=None,
+                   help="where trainers run (default: SIVA_EXECUTOR, else threads); "
+                        "ray needs pip install '.[ray]' (docs/fleet.md)")
+    p.add_argument("--ray-address", default=None,
+                   help="the Ray cluster, host:port (default: SIVA_RAY_ADDRESS)")
 
 
 def _replay_args(p: argparse.ArgumentParser) -> None:
@@ -55,7 +60,14 @@ def serve_command(args: argparse.Namespace) -> int:
     data_dir = args.data_dir
     if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
         data_dir = None  # the parser's default: let the environment decide
-    settings = Settings.from_env(data_dir=data_dir)
+    settings = Settings.from_env(data_dir=data_dir, executor=getattr(args, "executor", None),
+                                 ray_address=getattr(args, "ray_address", None))
+    if settings.executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            log.error("--executor ray / SIVA_EXECUTOR=ray needs Ray: pip install '.[ray]'")
+            return 2
     if os.environ.get("SIVA_REQUIRE_TOKEN", "0").strip() not in ("", "0") and not settings.api_token:
         log.error("SIVA_REQUIRE_TOKEN is set but SIVA_API_TOKEN is not: refusing to serve an "
                   "open API (set SIVA_API_TOKEN, or SIVA_REQUIRE_TOKEN=0 to run without one)")

@@ -13,13 +13,12 @@ the routes read published snapshots through it and never wait for training.
 """
 from __future__ import annotations
 
-import time
 from typing import Any, Protocol
 
 from siva_core import Structure
 
 from .settings import Settings
-from .worker import SystemWorker
+from .worker import SystemWorker, stop_workers
 
 
 class TrainerHandle(Protocol):
@@ -68,12 +67,7 @@ class ThreadExecutor:
     def stop_all(self, handles: list[TrainerHandle], timeout: float) -> list[str]:
         """Stop every trainer (final checkpoints) within ``timeout`` in all; returns the
         names of those that did not stop in time."""
-        for w in handles:
-            w.request_stop()
-        deadline = time.monotonic() + timeout
-        for w in handles:
-            w.stop(timeout=max(0.0, deadline - time.monotonic()))
-        return [w.name for w in handles if w.alive]
+        return stop_workers(handles, timeout)
 
     def describe(self) -> dict[str, Any]:
         return {"kind": self.kind}

@@ -8,8 +8,7 @@ each asking ``SIVA_RAY_CPUS_PER_ACTOR`` logical CPUs, spread over the cluster's 
 dir; a front that dies (kill -9) finds its actors again by name when it restarts.
 
 The front never blocks on an actor in a read: one poller thread fetches, every
-``SIVA_RAY_POLL_S``, each host's changed snapshots and drift reports and its queued event-log
-entries, which it writes to the MCAP log in order (acknowledging them on the next poll).
+``SIVA_RAY_POLL_S``, each host's changed snapshots and its queued event-log entries, which it writes to the MCAP log in order (acknowledging them on the next poll).
 A new actor incarnation (a restart) starts a new log segment for its systems, as a
 restarted trainer thread does, so ``siva replay`` stitches the segments.
 """
@@ -25,6 +24,7 @@ from siva_core import Structure
 
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
+from .errors import ApiError
 from .settings import Settings
 from .worker import base_snapshot
 
@@ -32,6 +32,11 @@ log = logging.getLogger("siva.service.ray")
 
 #: a host unreachable this long is reported in /healthz (Ray is restarting it)
 UNREACHABLE_AFTER_S = 5.0
+#: drift reports: a copy younger than this is served as is; a read waits at most
+#: DRIFT_WAIT_S for a newer one; one read keeps the copy refreshed for DRIFT_WANTED_S
+DRIFT_FRESH_S = 2.0
+DRIFT_WAIT_S = 0.4
+DRIFT_WANTED_S = 60.0
 
 
 class RayTrainer:
@@ -52,14 +57,28 @@ class RayTrainer:
         self.epoch = 0
         self.heartbeat = time.monotonic()
         self.checkpoint_error: str | None = None
+        self.start_error: str | None = None
+        self.drift_at = -1e9                     # time.monotonic() of the drift copy
+        self.drift_ref: Any = None               # a drift report on its way
+        self.drift_wanted_until = -1e9           # keep it fresh until then (it is read)
 
     # ------------------------------------------------------------------ control
     def start(self) -> None:
-        """Start (or find) the system on its host, and fetch a first snapshot."""
+        """Start (or find) the system on its host and fetch a first snapshot, so the first
+        read after a restart already shows the resumed epoch.  Never raises: when the
+        cluster cannot take it now, /healthz says so and the poller tries again."""
         ray = self.executor.ray
-        host = self.executor.host(self.host_id)
-        self.generation = ray.get(host.add.remote(self.name), timeout=120)
-        first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
+        try:
+            host = self.executor.host(self.host_id)
+            self.generation = ray.get(host.add.remote(self.name), timeout=120)
+            first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
+        except Exception as exc:  # noqa: BLE001 - cluster down or full: retried
+            self.start_error = f"{type(exc).__name__}: {exc}"
+            log.error("%s: cannot start its trainer on Ray host %s (%s); retrying",
+                      self.name, self.host_id, self.start_error)
+            self.executor.retry_start(self)
+            return
+        self.start_error = None
         entry = first["systems"].get(self.name)
         if entry is not None:
             self.update(entry)
@@ -87,9 +106,13 @@ class RayTrainer:
 
     def reset_drift(self) -> dict[str, Any]:
         ray = self.executor.ray
-        report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
-                         timeout=120)
-        self._drift = report
+        try:
+            report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
+                             timeout=120)
+        except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
+            raise ApiError(503, f"system {self.name!r}: its trainer actor is unavailable "
+                                f"({type(exc).__name__}); retry in a minute") from None
+        self._drift, self.drift_at = report, time.monotonic()
         return report
 
     # ------------------------------------------------------------------ reads
@@ -97,7 +120,40 @@ class RayTrainer:
         return self._snapshot
 
     def drift_report(self) -> dict[str, Any]:
+        """The drift report, fetched on demand: a report holds up to SIVA_HISTORY_LIMIT
+        snapshots (about 1 MB), too much for every poll.  A read waits at most
+        ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S``, else gets the last copy;
+        the poller keeps a report that was read in the last minute fresh."""
+        now = time.monotonic()
+        self.drift_wanted_until = now + DRIFT_WANTED_S
+        if now - self.drift_at > DRIFT_FRESH_S:
+            self.request_drift()
+            self.collect_drift(timeout=DRIFT_WAIT_S)
         return self._drift
+
+    def request_drift(self) -> None:
+        if self.drift_ref is None:
+            try:
+                self.drift_ref = self.executor.host(self.host_id).drift_report.remote(self.name)
+            except Exception:  # noqa: BLE001 - the host is restarting: the last copy
+                self.drift_ref = None
+
+    def collect_drift(self, timeout: float = 0.0) -> None:
+        """Take the requested report if it is there within ``timeout`` seconds."""
+        ref = self.drift_ref
+        if ref is None:
+            return
+        ray = self.executor.ray
+        try:
+            ready, _ = ray.wait([ref], timeout=timeout)
+            if not ready:
+                return  # still coming: the poller collects it
+            self._drift = ray.get(ref)
+            self.drift_at = time.monotonic()
+        except Exception as exc:  # noqa: BLE001 - restarting: the last copy will do
+            log.warning("%s: drift report not fetched (%s); the last copy is served",
+                        self.name, type(exc).__name__)
+        self.drift_ref = None
 
     @property
     def alive(self) -> bool:
@@ -116,6 +172,9 @@ class RayTrainer:
         return self._status.get("error")
 
     def problem(self) -> str | None:
+        if self.start_error:
+            return (f"system {self.name!r}: its trainer could not be started on Ray "
+                    f"({self.start_error}); retrying")
         down = self.executor.unreachable_for(self.host_id)
         if down is not None and down > UNREACHABLE_AFTER_S:
             return (f"system {self.name!r}: its trainer actor (host {self.host_id}) has not "
@@ -169,6 +228,7 @@ class RayExecutor:
         self._down_since: dict[str, float] = {}
         self._full: set[str] = set()
         self._restarts: dict[str, int] = {}
+        self._retry: dict[str, tuple[float, RayTrainer]] = {}  # name -> (when, handle)
         self._stop = threading.Event()
         self._poller = threading.Thread(target=self._poll_loop, name="siva-ray-poller",
                                         daemon=True)
@@ -273,12 +333,31 @@ class RayExecutor:
                 "namespace": self.settings.ray_namespace, "hosts": hosts}
 
     # ------------------------------------------------------------------ the poller
+    def retry_start(self, handle: RayTrainer) -> None:
+        """Poller: start ``handle`` again in 5 s (it could not be started now)."""
+        self._retry[handle.name] = (time.monotonic() + 5.0, handle)
+
     def _poll_loop(self) -> None:
         while not self._stop.wait(self.settings.ray_poll_s):
+            for name, (when, handle) in list(self._retry.items()):
+                if time.monotonic() >= when and self._handles.get(name) is handle:
+                    del self._retry[name]
+                    handle.start()  # re-queues itself on failure
+                elif self._handles.get(name) is not handle:
+                    self._retry.pop(name, None)
             try:
                 self.poll_once()
+                self._refresh_drift()
             except Exception:  # noqa: BLE001 - keep polling
                 log.exception("polling the trainer hosts failed")
+
+    def _refresh_drift(self) -> None:
+        """Collect drift reports on their way; ask again for those read lately."""
+        now = time.monotonic()
+        for h in list(self._handles.values()):
+            h.collect_drift()
+            if h.drift_wanted_until > now and now - h.drift_at > DRIFT_FRESH_S:
+                h.request_drift()
 
     def poll_once(self) -> None:
         with self._lock:

@@ -144,28 +144,34 @@ class TrainerHost:
         if w is not None:
             w.notify()
 
-    def reset_drift(self, name: str) -> dict[str, Any]:
+    def _worker(self, name: str) -> Any:
         w = self.workers.get(name)
         if w is None:
             raise KeyError(f"system {name!r} is not on trainer host {self.host_id}")
-        return w.reset_drift()
+        return w
+
+    def reset_drift(self, name: str) -> dict[str, Any]:
+        return self._worker(name).reset_drift()
+
+    def drift_report(self, name: str) -> dict[str, Any]:
+        """Asked for by a GET .../drift: a drift report holds up to SIVA_HISTORY_LIMIT
+        snapshots (about 1 MB), too much to ship with every poll; active alarms travel
+        with every snapshot."""
+        return self._worker(name).drift_report()
 
     def stop_all(self, timeout: float) -> list[str]:
         """Stop every worker (final checkpoints) within ``timeout``; the late ones' names."""
+        from .worker import stop_workers
+
         with self._lock:
             workers = list(self.workers.values())
-        for w in workers:
-            w.request_stop()
-        deadline = time.monotonic() + timeout
-        for w in workers:
-            w.stop(timeout=max(0.0, deadline - time.monotonic()))
-        return [w.name for w in workers if w.alive]
+        return stop_workers(workers, timeout)
 
     # ------------------------------------------------------------------ the front's poll
     def poll(self, acked: dict[str, int], full: bool = False, only: str | None = None,
              incarnation: str | None = None) -> dict[str, Any]:
-        """Per system: status, the snapshot and drift report when they changed since the
-        last poll (all with ``full``), and the events not yet acknowledged.  ``acked`` counts
+        """Per system: status, the snapshot when it changed since the last poll (with
+        ``full``: also the drift report), and the events not yet acknowledged.  ``acked`` counts
         only for the ``incarnation`` it was made for: Ray retries a poll sent to a process
         that died on its successor, whose event numbers start again at 1."""
         if incarnation != self.incarnation:
@@ -183,7 +189,7 @@ class TrainerHost:
                 "heartbeat_age_s": now - w.heartbeat, "checkpoint_error": w.checkpoint_error}}
             if full or sent is None or sent[0] is not snap:
                 entry["snapshot"] = snap
-            if full or sent is None or sent[1] is not report:
+            if full or sent is None:
                 entry["drift"] = report
             if only is None:
                 self._sent[name] = (snap, report)

@@ -334,7 +334,7 @@ async def get_drift(name: str, request: Request,
                     ) -> dict[str, Any]:
     """History of snapshots (recent means, intervals, modal quantities) and alarms."""
     w = service_of(request).worker(name)
-    report = w.drift_report()
+    report = await run_in_threadpool(w.drift_report)  # with Ray: fetched from the actor
     hist = report["history"] if limit is None else report["history"][-limit:]
     return {"system": name, **report, "history": hist}
 

@@ -356,10 +356,7 @@ class Store:
             return list(s.recordings)
 
     def recording(self, name: str, rid: str) -> RecordingMeta:
-        for m in self.recordings(name):
-            if m.id == rid:
-                return m
-        raise UnknownRecording(f"system {name!r} has no recording {rid!r}")
+        return _find_recording(self.recordings(name), name, rid)
 
     def counts(self, name: str) -> dict[str, int]:
         s = self._get(name)
@@ -378,6 +375,13 @@ class Store:
 
     def load_checkpoint(self, name: str) -> dict[str, Any] | None:
         return _load_checkpoint(self.checkpoint_path(name))
+
+
+def _find_recording(metas: list[RecordingMeta], name: str, rid: str) -> RecordingMeta:
+    for m in metas:
+        if m.id == rid:
+            return m
+    raise UnknownRecording(f"system {name!r} has no recording {rid!r}")
 
 
 def _raw_name(rid: str, fmt: str) -> str:
@@ -450,10 +454,7 @@ class TrainerStoreView:
         return sorted(cache.values(), key=lambda m: m.index)
 
     def recording(self, name: str, rid: str) -> RecordingMeta:
-        for m in self.recordings(name):
-            if m.id == rid:
-                return m
-        raise UnknownRecording(f"system {name!r} has no recording {rid!r}")
+        return _find_recording(self.recordings(name), name, rid)
 
     def counts(self, name: str) -> dict[str, int]:
         c = {r: 0 for r in ROLES}

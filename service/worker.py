@@ -52,7 +52,7 @@ log = logging.getLogger("siva.service.worker")
 #: ensemble epochs on the current data set needed before a refinement starts from them
 REFINE_MIN_SAMPLES = 10
 
-__all__ = ["SystemWorker", "default_trainer", "base_snapshot", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
+__all__ = ["SystemWorker", "default_trainer", "base_snapshot", "stop_workers", "CHECKPOINT_VERSION", "REFINE_MIN_SAMPLES",
            # moved to their own modules; re-exported for existing imports
            "parse_upload", "processing_for", "estimate_view", "estimate_parameters", "jsonable"]
 
@@ -650,6 +650,17 @@ class SystemWorker:
             return
         self.checkpoint_error = None
         self.checkpoint_epoch = int(self.trainer.epoch)
+
+
+def stop_workers(workers: list[Any], timeout: float) -> list[str]:
+    """Ask every worker to stop, then wait at most ``timeout`` in all (one slow epoch must
+    not delay the others' final checkpoints); returns the names still running."""
+    for w in workers:
+        w.request_stop()
+    deadline = time.monotonic() + timeout
+    for w in workers:
+        w.stop(timeout=max(0.0, deadline - time.monotonic()))
+    return [w.name for w in workers if w.alive]
 
 
 def base_snapshot(name: str, state: str, epoch: int = 0,
