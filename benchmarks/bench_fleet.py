@@ -8,15 +8,16 @@ on a port of its own), registers N systems with the paper's LO-NO model
 realistic case; a 1-DOF linear model would train faster and understate the cost), gives
 each a training and a validation record, waits until every trainer has published an
 epoch, then for ``--window`` seconds streams one record per system every ``--period``
-seconds, staggered (system i starts at i * period / N; every 4th record is validation).
-Records come from ``service.demo.simulate_impact`` (hammer 30-900 N, sensor noise, hum).
+seconds, staggered (system i starts at i * period / N; every 4th record is validation),
+from 16 concurrent uploaders (each structure uploads on its own).  Records come from ``service.demo.simulate_impact`` (hammer 30-900 N, sensor noise, hum).
 
 Measured per executor and N, over the window:
 
 * aggregate epochs per second: sum over systems of the epoch increase / window;
 * record to estimate: from the 202 of an upload to the first GET .../estimate whose
   ``data.train`` / ``data.validation`` lists the record (the record is in the training
-  data of a published snapshot; polled every 0.5 s, so up to 0.5 s late) - p50, p95;
+  data of a published snapshot; polled every 0.5 s when the server answers at once) - p50,
+  p95, and the same to that snapshot's own ``time`` (free of the polling);
   also the same to the first estimate whose monitoring has fitted it
   (``monitoring.processed_index`` >= the record's index: the headline includes it);
 * the longest gap between successive published snapshots of any system (their own
@@ -32,7 +33,8 @@ Measured per executor and N, over the window:
     python benchmarks/bench_fleet.py --systems none --sparse-prefill 16   # sparse records only
 
 Before the fleet cases, a sparse-record run per executor (``run_sparse``) measures the
-CPU of onboarding one system, of an idle system and of one record arriving at an idle one.
+CPU of onboarding one system, of an idle system and of one record arriving at an idle one
+(``--sparse-prefill 16``: with a full replay buffer, the steady state).
 
 Traffic goes to 127.0.0.1 only; every loop has a deadline.  Needs psutil (the test extra)
 and, for ``ray``, the ray extra (``pip install .[ray]``).
