@@ -71,7 +71,7 @@ class EventQueue:
 def settings_dict(settings: Settings) -> dict[str, Any]:
     """Settings as plain values (what the actor is created with, and compared by)."""
     d = asdict(settings)
-    d["data_dir"] = str(d["data_dir"])
+    d["data_dir"] = str(Path(d["data_dir"]).resolve())  # actors run in other directories
     return d
 
 

@@ -23,6 +23,7 @@ ENV_VARS: dict[str, str] = {
     "SIVA_VALIDATION_WINDOW": "validation_window",
     "SIVA_AUTO_VALIDATION_EVERY": "auto_validation_every",
     "SIVA_SNAPSHOT_EVERY": "snapshot_every",
+    "SIVA_SNAPSHOT_MAX_INTERVAL_S": "snapshot_max_interval_s",
     "SIVA_CHECKPOINT_EVERY_S": "checkpoint_every_s",
     "SIVA_IDLE_SLEEP_S": "idle_sleep_s",
     "SIVA_EPOCH_PAUSE_S": "epoch_pause_s",
@@ -76,6 +77,7 @@ class Settings:
     auto_validation_every: int = 4      # role omitted: every k-th arrival -> validation
     # Worker cadence.
     snapshot_every: int = 5             # epochs between published snapshots
+    snapshot_max_interval_s: float = 10.0  # ... or sooner: at most this long between them
     checkpoint_every_s: float = 30.0    # seconds between durable trainer checkpoints
     idle_sleep_s: float = 0.5           # wait when there is nothing to train on
     epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
@@ -130,7 +132,7 @@ class Settings:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
-        for name in ("replay_reservoir", "checkpoint_every_s", "idle_sleep_s", "epoch_pause_s",
+        for name in ("replay_reservoir", "checkpoint_every_s", "snapshot_max_interval_s", "idle_sleep_s", "epoch_pause_s",
                      "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
                      "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s"):
             if getattr(self, name) < 0:

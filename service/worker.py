@@ -9,7 +9,7 @@ routes read without a lock (a reference assignment is atomic in CPython).
 Loop: when notified of new recordings it updates the replay buffer (store.ReplayBuffer),
 re-reads and processes only what is selected, and calls ``trainer.set_data`` (networks and
 optimisers are kept: a warm start).  It then trains epoch after epoch forever, publishing
-a snapshot every ``snapshot_every`` epochs and checkpointing (atomically, torch.save) every
+a snapshot every ``snapshot_every`` epochs (or ``snapshot_max_interval_s``) and checkpointing (atomically, torch.save) every
 ``checkpoint_every_s`` seconds and on shutdown.  Without both a train and a validation
 record it sleeps.  A trainer exception is logged, shown in the snapshot, and retried after
 a back-off; it never kills the thread.
@@ -125,6 +125,7 @@ class SystemWorker:
         self._state = "starting"
         self._error: str | None = None
         self._epoch_times: list[float] = []
+        self._published_at = time.monotonic()
         self._snapshot: dict[str, Any] = self._base_snapshot()
         self._drift_report: dict[str, Any] = self._report()
 
@@ -271,7 +272,7 @@ class SystemWorker:
             self._last_log = elog
             self._thetas.append(np.asarray(elog.theta, dtype=float))
             self._state = "converged" if self.trainer.converged else "training"
-            if len(self._thetas) >= self.settings.snapshot_every:
+            if self._snapshot_due():
                 self._publish(observe=True)
                 self._offer_refinement()
             if time.monotonic() - last_ckpt >= self.settings.checkpoint_every_s:
@@ -289,6 +290,16 @@ class SystemWorker:
                 self._checkpoint()
             except Exception:  # noqa: BLE001
                 log.exception("%s: final checkpoint failed", self.name)
+
+    def _snapshot_due(self) -> bool:
+        """``snapshot_every`` epochs since the last snapshot, or ``snapshot_max_interval_s``
+        seconds and at least one epoch: with many systems sharing few cores an epoch can
+        take seconds, and an estimate should still move every few seconds."""
+        s = self.settings
+        if len(self._thetas) >= s.snapshot_every:
+            return True
+        return bool(self._thetas) and s.snapshot_max_interval_s > 0 and (
+            time.monotonic() - self._published_at >= s.snapshot_max_interval_s)
 
     def _should_idle(self) -> bool:
         """Converged, ``idle_after_epochs`` epochs on unchanged data, the first ``best``
@@ -439,6 +450,7 @@ class SystemWorker:
         return self._monitor_view.get("best") or self._best
 
     def _publish(self, observe: bool = False) -> None:
+        self._published_at = time.monotonic()
         snap = self._base_snapshot()
         tr = self.trainer
         recent: dict[str, float] = {}
