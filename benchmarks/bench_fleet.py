@@ -42,6 +42,7 @@ and, for ``ray``, the ray extra (``pip install .[ray]``).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -762,6 +763,10 @@ def main() -> int:
         ap.error("--systems needs positive integers (or none, with --sparse-records > 0) "
                  "and --period must be > 0")
     executors = ["threads", "ray"] if args.executor == "both" else [args.executor]
+    if args.executor == "both" and importlib.util.find_spec("ray") is None:
+        print("ray is not installed (pip install '.[ray]'): measuring threads only",
+              flush=True)
+        executors = ["threads"]
     cases = [Case(ex, 1, 0.0, 0.0, args.sparse_records, args.sparse_prefill)
              for ex in executors if args.sparse_records > 0]
     cases += [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
