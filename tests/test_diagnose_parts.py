@@ -105,3 +105,45 @@ def test_damping_exponent_tells_quadratic_from_cubic_damping(kind, coeffs, lo, h
     sig = amplitude_signatures(sdof, sdof.vector({"c": 0.05, "k": 4000.0}), recs, proc, None)
     p = sig["modes"][0]["measured"]["damping_exponent"]
     assert lo < p < hi, (p, sig["reading"])
+
+
+def test_sensor_fits_add_the_force_gain_beside_a_response_gain():
+    """A scan that finds an accelerometer gain also sends the force gain to the fit stage
+    (with known masses a force gain is a common gain of every response channel)."""
+    from siva_core._impl.diagnose.sensors import sensor_fits
+
+    recs = [Recording.from_columns({"time": np.arange(32) / 100.0, "acc_x": np.ones(32),
+                                    "force_x": np.ones(32)}, ["x"], name="r")]
+    sens = sensor_candidates(Structure.from_dict(SDOF), recs)
+    costs = {"accelerometer_gain": 0.4, "channel_delay": 0.95, "force_gain": 0.9}
+    for c in sens:
+        c.scan_cost = costs[c.effect.kind]
+        c.coefficients = {c.effect.magnitude: 1.1}
+    picked = [c.effect.kind for c in sensor_fits(sens, 1.0, DiagnoseSettings())]
+    assert picked == ["accelerometer_gain", "force_gain"]
+    for c in sens:  # nothing beats the nominal model: no sensor fit at all
+        c.scan_cost = 0.99
+    assert sensor_fits(sens, 1.0, DiagnoseSettings()) == []
+
+
+def test_matrix_sizes_come_from_the_structure():
+    """The confusion-matrix benchmark's cases: sizes derived from each structure's response
+    (two sizes, the small cubic spring softening), no case where the model has the kind."""
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import matrix
+
+    for rig in ("lono", "chain3"):
+        names = matrix.case_names("full", [rig])
+        assert f"{rig}:null" in names and len(names) == len(set(names))
+        st = matrix.STRUCTURES[rig].nominal()
+        for kind in matrix.KINDS:
+            for place in matrix.places(st):
+                inside = f"{rig}:{kind}:{place}:small" in names
+                assert inside != matrix._has(st, kind, place)
+        small = matrix.coefficients(rig, "quadratic_damper", matrix.places(st)[0], "small")
+        large = matrix.coefficients(rig, "quadratic_damper", matrix.places(st)[0], "large")
+        assert large["c2"] / small["c2"] == pytest.approx(10 / 3, rel=0.01)
+        assert matrix.coefficients(rig, "cubic_spring", matrix.places(st)[0], "small")["k3"] < 0
+    assert "lono:damper:LO-ground:small" not in matrix.case_names("full", ["lono"])
+    assert len(matrix.case_names("reduced", ["lono"])) < len(matrix.case_names("full", ["lono"]))

@@ -23,9 +23,74 @@ from .settings import DiagnoseSettings
 SCAN_FRACTIONS = tuple(float(x) for x in np.logspace(-4.0, -0.5, 8))
 
 
+#: magnitudes of the continuation scan (wider: the effect is strong when it is needed)
+CONTINUATION_FRACTIONS = tuple(float(x) for x in np.logspace(-3.0, 0.5, 11))
+
+
+def _record_size(rec: Recording) -> float:
+    """Peak measured force, or the response RMS when there is none (free decays)."""
+    forces = [np.max(np.abs(np.asarray(x, float))) for k, x in rec.channels.items()
+              if k.startswith("force_")]
+    if forces and max(forces) > 0:
+        return float(max(forces))
+    resp = [np.asarray(x, float) for k, x in rec.channels.items()
+            if k.split("_")[0] in ("acc", "vel", "disp")]
+    return float(np.sqrt(np.mean(resp[0] ** 2))) if resp else 0.0
+
+
+class LowAmplitudeNominal:
+    """The nominal model re-fitted on the smallest train record alone (computed once, on
+    first use): the start of an amplitude continuation.
+
+    Why: when an effect is so strong that the nominal model cannot follow the train records
+    (a hardening spring that doubles a stiffness at the largest amplitude), the nominal fit
+    over all records is a compromise far from the structure's true linear part, and every
+    linearisation around it (scores, projected scans, local fits) points the wrong way.  At
+    the smallest amplitude an amplitude-dependent effect is weakest, so the nominal fit
+    there is close to the true linear part; the candidate's magnitude is then scanned by
+    real simulation of all train records from those parameters."""
+
+    def __init__(self, structure: Structure, theta_nom: np.ndarray,
+                 train: Sequence[Recording], proc: Processing, nfev: int) -> None:
+        self.structure, self.theta_nom, self.proc, self.nfev = structure, theta_nom, proc, nfev
+        self.train = list(train)
+        self._theta: np.ndarray | None = None
+
+    def available(self) -> bool:
+        return len(self.train) >= 2
+
+    def theta(self) -> np.ndarray:
+        if self._theta is None:
+            from ..refine import refine
+
+            low = min(self.train, key=_record_size)
+            self._theta = refine(self.structure, self.theta_nom, [low], self.proc,
+                                 max_nfev=self.nfev).theta
+        return self._theta
+
+
+def _continuation_start(c: Candidate, aug: Structure, names: dict[str, str],
+                        low: LowAmplitudeNominal, structure: Structure,
+                        train: Sequence[Recording], proc: Processing, amp: Amplitudes,
+                        force_scale: float) -> np.ndarray | None:
+    """Best point of a magnitude scan (real simulation, every shape and sign) with the
+    nominal parameters of the low-amplitude fit."""
+    best, th0 = math.inf, None
+    for batch in _batches(c, aug, names, low.theta(), structure, amp, force_scale,
+                          CONTINUATION_FRACTIONS):
+        R = _scan_residuals(aug, train, proc, batch)
+        if R is None:
+            continue
+        costs = np.where(np.all(np.isfinite(R), axis=1), np.sum(R ** 2, axis=1), math.inf)
+        k = int(np.argmin(costs))
+        if costs[k] < best:
+            best, th0 = float(costs[k]), batch[k].copy()
+    return th0
+
+
 def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.ndarray,
-             structure: Structure, amp: Amplitudes, force_scale: float
-             ) -> list[np.ndarray]:
+             structure: Structure, amp: Amplitudes, force_scale: float,
+             fractions: Sequence[float] = SCAN_FRACTIONS) -> list[np.ndarray]:
     """Start sets of the coarse scan: for each shape of the effect's grid, the magnitude on
     a log grid (both signs when the coefficient is unsigned), nominal parameters at the
     nominal fit.  One batch per shape and sign (a batch takes the substeps of its stiffest
@@ -38,7 +103,7 @@ def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.
     out = []
     for shape in eff.shape_grid(amp):
         typical = eff.typical_magnitude(amp, shape, force_scale)
-        mags = [f * typical for f in SCAN_FRACTIONS]
+        mags = [f * typical for f in fractions]
         for sign in signs:
             batch = []
             for m in mags:
@@ -125,7 +190,8 @@ def scan_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float,
-                  nominal_cost: float = math.inf) -> None:
+                  nominal_cost: float = math.inf,
+                  low: LowAmplitudeNominal | None = None) -> None:
     """Fit nominal + candidate by output error on the train records (in place).
 
     Starts: the nominal fit with the new magnitude at a few multiples of the score test's
@@ -200,6 +266,19 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                 res, c_ref = res2, c2
                 c.note = "fit restarted from the magnitude scan"
         except Exception:  # noqa: BLE001 - the first fit stands
+            pass
+    if low is not None and low.available() and not c_ref <= settings.stalled * nominal_cost:
+        # still stalled: amplitude continuation (see LowAmplitudeNominal)
+        try:
+            th_c = _continuation_start(c, aug, names, low, structure, train, proc, amp,
+                                       force_scale)
+            if th_c is not None:
+                res3 = refine(aug, th_c, list(train), proc, max_nfev=settings.fit_nfev)
+                c3 = float(output_error(aug, res3.theta[None], list(train), proc)[0])
+                if c3 < c_ref:
+                    res, c_ref = res3, c3
+                    c.note = "fit by amplitude continuation (low-amplitude nominal start)"
+        except Exception:  # noqa: BLE001 - the earlier fit stands
             pass
     theta, cost = (res.theta, c_ref) if c_ref <= best_cost else (th0, best_cost)
     c.theta = theta

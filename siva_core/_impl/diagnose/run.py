@@ -13,12 +13,12 @@ from ..effects import EFFECTS, Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .fitting import fit_candidate, scan_candidate
+from .fitting import LowAmplitudeNominal, fit_candidate, scan_candidate
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate, Diagnosis, _num
 from .screening import ee_screen, screen, select_for_fit
-from .sensors import fit_sensor, scan_sensor, sensor_candidates
+from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
@@ -99,14 +99,9 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     _say(progress, f"fitted next: {', '.join(c.label() for c in chosen)}; scans (train cost, "
                    f"nominal {fit.train_cost:.4g}): "
                    + ", ".join(f"{c.label()} {c.scan_cost:.4g}" for c in scanned[:8]))
-    # the two best sensor faults of different kinds whose scan clearly beats the nominal
-    kinds: set[str] = set()
-    for c in sorted(sens, key=lambda c: c.scan_cost):
-        if len(kinds) < 2 and c.effect.kind not in kinds and \
-                c.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
-            kinds.add(c.effect.kind)
-            chosen.append(c)
+    chosen += sensor_fits(sens, fit.train_cost, settings)
     t0 = time.perf_counter()
+    low = LowAmplitudeNominal(structure, theta, train, proc, settings.fit_nfev // 2)
     for k, c in enumerate(chosen):
         try:
             if c.category == "sensor":
@@ -114,7 +109,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             else:
                 fit_candidate(c, structure, theta, train, proc,
                               nom.amplitudes[c.loc.between], settings, nom.force_scale,
-                              fit.train_cost)
+                              fit.train_cost, low)
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")
