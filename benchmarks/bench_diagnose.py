@@ -28,7 +28,8 @@ Cases (the model is always the nominal LO-NO, examples/models/lono.toml):
   (``lono:coulomb:LO-ground:small``) can also be given to ``--cases``.
 
 Columns: the named effect(s), identified size / true size of each named expected effect,
-closure, gaps, wall time.  At the end: a confusion matrix of kinds, and per structure the
+closure, gaps, wall time and CPU time of the process (on a shared machine the wall time
+grows with the other jobs' load; the CPU time is close to an idle machine's wall time).  At the end: a confusion matrix of kinds, and per structure the
 share right (kind and place), false verdicts on nulls and the time per case.
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--matrix full|reduced]
@@ -151,12 +152,12 @@ def run(name: str, quiet: bool = True) -> dict[str, Any]:
             else Structure.from_file(MODEL)
         train, val, expected = load_case(name, structure)
         truths = truth_of(name)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         diag = diagnose(structure, train, val, "auto",
                         progress=None if quiet else (lambda m: print("   ", m, flush=True)))
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     out = diag.to_json()
     got = [(v["kind"], tuple(v["between"])) for v in out["verdicts"]]
     shown = diag.verdict or (diag.ranking[0] if diag.ranking else None)
@@ -181,6 +182,7 @@ def run(name: str, quiet: bool = True) -> dict[str, Any]:
         "coefficients": [v["coefficients"] for v in out["verdicts"]],
         "reason": out["rule"].get("reason"),
         "time_s": elapsed,
+        "cpu_s": cpu,
         "timing_s": out["timing_s"],
     }
 
@@ -216,14 +218,15 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
     for r in rows:
         groups.setdefault(r["case"].split(":")[0] if ":" in r["case"] else "named", []).append(r)
     print(f"\n{'structure':10s} {'cases':>5s} {'right':>6s} {'share':>6s} {'null false':>10s} "
-          f"{'mean s':>7s} {'max s':>7s}")
+          f"{'mean s':>7s} {'max s':>7s} {'mean cpu s':>10s}")
     for g, rs in groups.items():
         nulls = [r for r in rs if not r["expected"]]
         false = sum(1 for r in nulls if r["verdict"])
         ok = sum(r["correct"] for r in rs)
         times = [r["time_s"] for r in rs]
+        cpu = [r.get("cpu_s", 0.0) for r in rs]
         print(f"{g:10s} {len(rs):5d} {ok:6d} {100 * ok / len(rs):5.0f}% {false:4d} of {len(nulls):<3d} "
-              f"{sum(times) / len(times):7.1f} {max(times):7.1f}")
+              f"{sum(times) / len(times):7.1f} {max(times):7.1f} {sum(cpu) / len(cpu):10.1f}")
 
 
 def main() -> int:
@@ -238,7 +241,7 @@ def main() -> int:
     args = ap.parse_args()
     rows = []
     head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
-            f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s}")
+            f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s} {'cpu_s':>7s}")
     print(head)
     names = (matrix.case_names(args.matrix, args.structures.split(",")) if args.matrix
              else args.cases.split(","))
@@ -250,14 +253,15 @@ def main() -> int:
             row = {"case": name.strip(), "expected": "?", "verdict": f"ERROR {exc}"[:60],
                    "correct": False, "first_right": False, "size_ratio": [],
                    "closure": None, "gap_before": None, "gap_after": None,
-                   "coefficients": None, "reason": str(exc), "time_s": 0.0, "timing_s": {}}
+                   "coefficients": None, "reason": str(exc), "time_s": 0.0, "cpu_s": 0.0,
+                   "timing_s": {}}
         rows.append(row)
         fmt = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
         print(f"{row['case']:32s} {str(row['expected']):24s} {str(row['verdict']):24s} "
               f"{' '.join(f'{x:.3f}' for x in row['size_ratio']) or '-':12s} "
               f"{'yes' if row['correct'] else 'NO ':3s} {fmt(row['closure']):>8s} "
               f"{fmt(row['gap_before']):>10s} {fmt(row['gap_after']):>10s} "
-              f"{row['time_s']:7.1f}", flush=True)
+              f"{row['time_s']:7.1f} {row.get('cpu_s', 0.0):7.1f}", flush=True)
         if args.verbose:
             print(f"    coefficients {row['coefficients']}; rule: {row['reason']}")
     n_ok = sum(r["correct"] for r in rows)

@@ -345,9 +345,7 @@ def test_synthetic_other_effects(lono, truth, kind, between, coeffs):
 @pytest.mark.slow
 @pytest.mark.parametrize("fault,channel,value", [
     ("accelerometer_gain", "acc_LO", 0.85),
-    pytest.param("force_gain", "force_NO", 1.15, marks=pytest.mark.xfail(
-        strict=True, reason="known miss (docs/diagnosis.md): a force gain is read as an "
-                            "accelerometer gain on LO"))])
+    ("force_gain", "force_NO", 1.15)])
 def test_sensor_fault_is_named_as_sensor(lono, truth, fault, channel, value):
     """Records of the nominal model itself with one faulty sensor: the verdict is the
     sensor (category, channel and value), not a structural element."""

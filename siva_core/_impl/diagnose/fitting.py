@@ -14,78 +14,13 @@ from ..structure import Structure
 from .model_edit import augmented
 from .nominal import _plausible
 from .results import Candidate
-from .settings import DiagnoseSettings
+from .settings import FAST, DiagnoseSettings
 
 
 #: magnitudes of the coarse scan, as fractions of the effect's "typical" magnitude (the
 #: one whose force equals the structure's inertial force at the largest amplitude seen):
 #: an unmodelled effect is rarely larger, and below 1e-4 of it is invisible in the data
 SCAN_FRACTIONS = tuple(float(x) for x in np.logspace(-4.0, -0.5, 8))
-
-
-#: magnitudes of the continuation scan (wider: the effect is strong when it is needed)
-CONTINUATION_FRACTIONS = tuple(float(x) for x in np.logspace(-3.0, 0.5, 11))
-
-
-def _record_size(rec: Recording) -> float:
-    """Peak measured force, or the response RMS when there is none (free decays)."""
-    forces = [np.max(np.abs(np.asarray(x, float))) for k, x in rec.channels.items()
-              if k.startswith("force_")]
-    if forces and max(forces) > 0:
-        return float(max(forces))
-    resp = [np.asarray(x, float) for k, x in rec.channels.items()
-            if k.split("_")[0] in ("acc", "vel", "disp")]
-    return float(np.sqrt(np.mean(resp[0] ** 2))) if resp else 0.0
-
-
-class LowAmplitudeNominal:
-    """The nominal model re-fitted on the smallest train record alone (computed once, on
-    first use): the start of an amplitude continuation.
-
-    Why: when an effect is so strong that the nominal model cannot follow the train records
-    (a hardening spring that doubles a stiffness at the largest amplitude), the nominal fit
-    over all records is a compromise far from the structure's true linear part, and every
-    linearisation around it (scores, projected scans, local fits) points the wrong way.  At
-    the smallest amplitude an amplitude-dependent effect is weakest, so the nominal fit
-    there is close to the true linear part; the candidate's magnitude is then scanned by
-    real simulation of all train records from those parameters."""
-
-    def __init__(self, structure: Structure, theta_nom: np.ndarray,
-                 train: Sequence[Recording], proc: Processing, nfev: int) -> None:
-        self.structure, self.theta_nom, self.proc, self.nfev = structure, theta_nom, proc, nfev
-        self.train = list(train)
-        self._theta: np.ndarray | None = None
-
-    def available(self) -> bool:
-        return len(self.train) >= 2
-
-    def theta(self) -> np.ndarray:
-        if self._theta is None:
-            from ..refine import refine
-
-            low = min(self.train, key=_record_size)
-            self._theta = refine(self.structure, self.theta_nom, [low], self.proc,
-                                 max_nfev=self.nfev).theta
-        return self._theta
-
-
-def _continuation_start(c: Candidate, aug: Structure, names: dict[str, str],
-                        low: LowAmplitudeNominal, structure: Structure,
-                        train: Sequence[Recording], proc: Processing, amp: Amplitudes,
-                        force_scale: float) -> np.ndarray | None:
-    """Best point of a magnitude scan (real simulation, every shape and sign) with the
-    nominal parameters of the low-amplitude fit."""
-    best, th0 = math.inf, None
-    for batch in _batches(c, aug, names, low.theta(), structure, amp, force_scale,
-                          CONTINUATION_FRACTIONS):
-        R = _scan_residuals(aug, train, proc, batch)
-        if R is None:
-            continue
-        costs = np.where(np.all(np.isfinite(R), axis=1), np.sum(R ** 2, axis=1), math.inf)
-        k = int(np.argmin(costs))
-        if costs[k] < best:
-            best, th0 = float(costs[k]), batch[k].copy()
-    return th0
 
 
 def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.ndarray,
@@ -190,8 +125,7 @@ def scan_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float,
-                  nominal_cost: float = math.inf,
-                  low: LowAmplitudeNominal | None = None) -> None:
+                  nominal_cost: float = math.inf) -> None:
     """Fit nominal + candidate by output error on the train records (in place).
 
     Starts: the nominal fit with the new magnitude at a few multiples of the score test's
@@ -249,7 +183,8 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             best_cost, th0 = float(costs[k]), batch[k]
     if th0 is None:
         raise ValueError("every start diverges")
-    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev)
+    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev,
+                 uncertainty=FAST)
     c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
     j = aug.free.index(names[eff.magnitude])
     scan_starts = [t for t in scan_starts if not _near(t[j], res.theta[j])]
@@ -260,25 +195,13 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
         try:
             costs = output_error(aug, np.stack(scan_starts), list(train), proc)
             k = int(np.argmin(costs))
-            res2 = refine(aug, scan_starts[k], list(train), proc, max_nfev=settings.fit_nfev)
+            res2 = refine(aug, scan_starts[k], list(train), proc,
+                          max_nfev=settings.fit_nfev, uncertainty=FAST)
             c2 = float(output_error(aug, res2.theta[None], list(train), proc)[0])
             if c2 < c_ref:
                 res, c_ref = res2, c2
                 c.note = "fit restarted from the magnitude scan"
         except Exception:  # noqa: BLE001 - the first fit stands
-            pass
-    if low is not None and low.available() and not c_ref <= settings.stalled * nominal_cost:
-        # still stalled: amplitude continuation (see LowAmplitudeNominal)
-        try:
-            th_c = _continuation_start(c, aug, names, low, structure, train, proc, amp,
-                                       force_scale)
-            if th_c is not None:
-                res3 = refine(aug, th_c, list(train), proc, max_nfev=settings.fit_nfev)
-                c3 = float(output_error(aug, res3.theta[None], list(train), proc)[0])
-                if c3 < c_ref:
-                    res, c_ref = res3, c3
-                    c.note = "fit by amplitude continuation (low-amplitude nominal start)"
-        except Exception:  # noqa: BLE001 - the earlier fit stands
             pass
     theta, cost = (res.theta, c_ref) if c_ref <= best_cost else (th0, best_cost)
     c.theta = theta
@@ -289,6 +212,46 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     c.train_cost = cost
     c.fitted = True
     c.fit_time_s = time.perf_counter() - t0
+
+
+def continue_fit(c: Candidate, train: Sequence[Recording], proc: Processing,
+                 nfev: int) -> None:
+    """More evaluations for a finalist of the first, cheaper round of fits: refine from
+    its fit on the full records (no horizons: it is in its basin already); kept when the
+    train cost improves."""
+    from ..refine import output_error, refine
+
+    if c.structure is None or c.theta is None or nfev <= 0:
+        return
+    t0 = time.perf_counter()
+    recs = list(c.correct(train))
+    res = refine(c.structure, c.theta, recs, proc, max_nfev=nfev, horizons=None,
+                 uncertainty=FAST)
+    cost = float(output_error(c.structure, res.theta[None], recs, proc)[0])
+    if cost < c.train_cost:
+        c.theta, c.train_cost = res.theta, cost
+        vals = c.structure.as_dict(res.theta)
+        if c.category == "structure" and c.names:
+            c.coefficients = {k: vals[p] for k, p in c.names.items()}
+            c.intervals = _intervals(res, c.structure, c.names)
+            c.parameters = {p: v for p, v in vals.items() if p not in c.names.values()}
+        else:
+            c.parameters = vals
+    c.fit_time_s += time.perf_counter() - t0
+
+
+def bootstrap_intervals(c: Candidate, train: Sequence[Recording], proc: Processing) -> None:
+    """The named effect's 95 % intervals with refine's bootstrap (the fits inside the
+    diagnosis use Gauss-Newton only, see ``settings.FAST``): a refine started at the fit's
+    optimum on the full records, a few evaluations, its theta not taken (the verdict stays
+    the one the validation records judged)."""
+    from ..refine import refine
+
+    if c.category != "structure" or c.structure is None or c.theta is None or not c.names:
+        return
+    res = refine(c.structure, c.theta, list(c.correct(train)), proc, max_nfev=5,
+                 horizons=None)
+    c.intervals = _intervals(res, c.structure, c.names)
 
 
 def _near(a: float, b: float, factor: float = 3.0) -> bool:
