@@ -19,7 +19,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from browser_support import (chromium_missing, console_errors,  # noqa: E402
                              full_page_screenshot, start_chromium)
 
-from siva_core import Recording, Structure  # noqa: E402
 from siva_core._impl.diagnose import diagnose, html_report  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,20 +38,9 @@ return {images: imgs.length,
 """
 
 
-def _duffing_without_cubic_damper() -> tuple[Structure, list[Recording], list[Recording]]:
-    spec = Structure.from_file(ROOT / "examples" / "models" / "duffing.toml").spec
-    spec["elements"] = [e for e in spec["elements"] if e["kind"] != "cubic_damper"]
-    model = Structure.from_dict(spec)
-    folder = DATA / "duffing"
-    train = [Recording.read(folder / "train_v5.csv", model.dofs)]
-    val = [Recording.read(folder / f, model.dofs) for f in ("val_v3.csv", "val_v8.csv")]
-    return model, train, val
-
-
-@needs_duffing
 @needs_chromium
-def test_report_renders_in_chromium_without_console_errors(tmp_path):
-    model, train, val = _duffing_without_cubic_damper()
+def test_report_renders_in_chromium_without_console_errors(tmp_path, duffing_without_cubic_damper):
+    model, train, val = duffing_without_cubic_damper
     page = tmp_path / "diagnosis.html"
     page.write_text(html_report(diagnose(model, train, val, "auto")))
     driver, _ = start_chromium(width=1200, height=900)
