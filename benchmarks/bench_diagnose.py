@@ -33,7 +33,7 @@ grows with the other jobs' load; the CPU time is close to an idle machine's wall
 share right (kind and place), false verdicts on nulls and the time per case.
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--matrix full|reduced]
-[--structures lono,chain3] [--json FILE] [--verbose]``
+[--structures lono,chain3] [--rotate N] [--json FILE] [--verbose]``
 (``SIVA_SHARED_DATA`` points at the shared data when it is not at ../shared/data)
 """
 from __future__ import annotations
@@ -236,6 +236,8 @@ def main() -> int:
                     help="run the confusion-matrix cases instead of --cases")
     ap.add_argument("--structures", default="lono,chain3",
                     help="structures of --matrix: " + ", ".join(matrix.STRUCTURES))
+    ap.add_argument("--rotate", type=int, default=0,
+                    help="--matrix reduced: shift places, sizes and sensor channels by this")
     ap.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     ap.add_argument("--verbose", action="store_true", help="progress of each diagnosis")
     args = ap.parse_args()
@@ -243,7 +245,8 @@ def main() -> int:
     head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
             f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s} {'cpu_s':>7s}")
     print(head)
-    names = (matrix.case_names(args.matrix, args.structures.split(",")) if args.matrix
+    names = (matrix.case_names(args.matrix, args.structures.split(","), args.rotate)
+             if args.matrix
              else args.cases.split(","))
     print(f"{len(names)} cases", flush=True)
     for name in names:

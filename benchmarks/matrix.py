@@ -220,36 +220,42 @@ def parse(name: str) -> MatrixCase:
     return MatrixCase(rig, what, tuple(args))
 
 
-def _sensor_cases(rig: Rig) -> list[MatrixCase]:
+def _sensor_cases(rig: Rig, rotate: int = 0) -> list[MatrixCase]:
     st = rig.nominal()
-    first = st.dofs[0]
-    return [MatrixCase(rig.name, "sensor", ("accelerometer_gain", f"acc_{first}")),
-            MatrixCase(rig.name, "sensor", ("channel_delay", f"acc_{st.dofs[-1]}")),
+    d = st.dofs
+    return [MatrixCase(rig.name, "sensor", ("accelerometer_gain", f"acc_{d[rotate % len(d)]}")),
+            MatrixCase(rig.name, "sensor", ("channel_delay", f"acc_{d[(-1 - rotate) % len(d)]}")),
             MatrixCase(rig.name, "sensor", ("force_gain", f"force_{rig.force_dof}"))]
 
 
-def cases(scope: str, rigs: list[str]) -> list[MatrixCase]:
+def cases(scope: str, rigs: list[str], rotate: int = 0) -> list[MatrixCase]:
     """``full``: every kind x every place it is missing x both sizes, the null, the sensor
     faults, every pair.  ``reduced``: every kind once per structure (place and size
     rotating through the list, so a reduced run still visits ground and coupling places
-    and both sizes), the null, the sensor faults and the first pair."""
+    and both sizes), the null, the sensor faults and the first pair.  ``rotate`` = r > 0
+    shifts the reduced run's places, sizes and sensor channels by r (the null, the force
+    gain and the pair, the same as for r = 0, are left out): reduced runs with r = 0, 1,
+    ... visit the full matrix piece by piece."""
     out: list[MatrixCase] = []
     for name in rigs:
         rig = STRUCTURES[name]
         st = rig.nominal()
-        out.append(MatrixCase(name, "null", ()))
+        if scope == "full" or rotate == 0:
+            out.append(MatrixCase(name, "null", ()))
         for n, kind in enumerate(KINDS):
             where = [p for p in places(st) if not _has(st, kind, p)]
             if scope == "full":
                 out += [MatrixCase(name, kind, (p, s)) for p in where for s in ("small", "large")]
             elif where:
-                out.append(MatrixCase(name, kind, (where[n % len(where)],
-                                                   ("small", "large")[n % 2])))
-        out += _sensor_cases(rig)
-        pairs = rig.pairs if scope == "full" else rig.pairs[:1]
-        out += [MatrixCase(name, "two", (str(i),)) for i in range(len(pairs))]
+                out.append(MatrixCase(name, kind, (where[(n + rotate) % len(where)],
+                                                   ("small", "large")[(n + rotate) % 2])))
+        sensors = _sensor_cases(rig, 0 if scope == "full" else rotate)
+        out += sensors if scope == "full" or rotate == 0 else sensors[:2]
+        if scope == "full" or rotate == 0:
+            pairs = rig.pairs if scope == "full" else rig.pairs[:1]
+            out += [MatrixCase(name, "two", (str(i),)) for i in range(len(pairs))]
     return out
 
 
-def case_names(scope: str, rigs: list[str]) -> list[str]:
-    return [c.name for c in cases(scope, rigs)]
+def case_names(scope: str, rigs: list[str], rotate: int = 0) -> list[str]:
+    return [c.name for c in cases(scope, rigs, rotate)]
