@@ -11,7 +11,7 @@ import pytest
 from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.model_spec import element_block, spec_toml
-from siva_core._impl.diagnose.screening import select_for_fit
+from siva_core._impl.diagnose.screening import other_places, select_for_fit
 from siva_core._impl.diagnose.sensor_faults import ACC_GAIN, CHANNEL_DELAY, corrected
 from siva_core._impl.diagnose.sensors import sensor_candidates
 from siva_core._impl.diagnose.signatures import amplitude_signatures
@@ -87,6 +87,25 @@ def test_the_fit_stage_keeps_every_family_that_could_win():
     # the runner-up place of the leader too; a family far below (spring 1 %) is not
     assert {"cubic_damper", "quadratic_damper", "coulomb"} <= set(kinds)
     assert kinds.count("cubic_damper") == 2 and "spring" not in kinds
+
+
+def test_the_leading_kind_is_fitted_at_every_other_place():
+    """Once a kind leads after the fits, every place of that kind not fitted yet gets a
+    fit (the best-scoring shape at each), strongest first."""
+    places = [Location(0, -1, ("LO", "ground")), Location(1, -1, ("NO", "ground")),
+              Location(0, 1, ("LO", "NO"))]
+    cands = []
+    for loc, score in zip(places, (0.5, 0.3, 0.01)):
+        for shape_score in (score, score / 2):  # two shapes per place: the better is kept
+            c = Candidate(EFFECTS["quadratic_damper"], loc, {})
+            c.score = shape_score
+            cands.append(c)
+    other = Candidate(EFFECTS["coulomb"], places[2], {})
+    other.score = 0.9
+    fitted = [cands[0]]
+    got = other_places([*cands, other], "quadratic_damper", fitted)
+    assert [c.loc.between for c in got] == [("NO", "ground"), ("LO", "NO")]
+    assert [c.score for c in got] == [0.3, 0.01]
 
 
 @pytest.mark.parametrize("kind,coeffs,lo,hi", [

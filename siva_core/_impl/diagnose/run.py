@@ -18,7 +18,7 @@ from .fitting import bootstrap_intervals, continue_fit, fit_candidate, scan_cand
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate, Diagnosis, _num
-from .screening import ee_screen, screen, select_for_fit
+from .screening import ee_screen, other_places, screen, select_for_fit
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
@@ -121,7 +121,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     chosen += sensor_fits(sens, fit.train_cost, settings)
     t0 = time.perf_counter()
     first = dataclasses.replace(settings, fit_nfev=min(settings.first_nfev, settings.fit_nfev))
-    for k, c in enumerate(chosen):
+
+    def fit_first(c: Candidate) -> bool:
         try:
             if c.category == "sensor":
                 fit_sensor(c, structure, theta, train, proc, first)
@@ -129,18 +130,19 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                 fit_candidate(c, structure, theta, train, proc,
                               nom.amplitudes[c.loc.between], first, nom.force_scale,
                               fit.train_cost)
+            return True
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")
-            continue
-        fraction(0.4 + 0.4 * (k + 1) / max(len(chosen), 1))
-    for c in finalists(chosen, settings):
+            return False
+
+    def fit_more(c: Candidate) -> None:
         try:
             continue_fit(c, train, proc, settings.fit_nfev - first.fit_nfev)
         except Exception as exc:  # noqa: BLE001 - the first fit stands
             _say(progress, f"{c.label()}: second round failed ({exc})")
-    fraction(0.9)
-    for c in (c for c in chosen if c.fitted):
+
+    def judge(c: Candidate) -> None:
         c.gap_before = gap_before
         c.gap_after, after_blocks = _gap(c.structure, c.theta, c.correct(val), proc)
         c.closure = 1.0 - c.gap_after / gap_before if gap_before > 0 else 0.0
@@ -153,6 +155,32 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         _say(progress, f"{c.label()}: closure {c.closure:.3f} (val gap {gap_before:.4g} -> "
                        f"{c.gap_after:.4g}; train {c.train_cost:.4g}; {c.fit_time_s:.1f} s) "
                        + ", ".join(f"{k}={v:.4g}" for k, v in c.coefficients.items()))
+
+    for k, c in enumerate(chosen):
+        fit_first(c)
+        fraction(0.4 + 0.4 * (k + 1) / max(len(chosen), 1))
+    for c in finalists(chosen, settings):
+        fit_more(c)
+    fraction(0.9)
+    for c in (c for c in chosen if c.fitted):
+        judge(c)
+    # the leading structural kind at every other place too: the place is decided by fits
+    lead = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
+               key=lambda c: c.closure, default=None)
+    if lead is not None and lead.category == "structure" and lead.closure >= settings.step_min:
+        for c in other_places(cands, lead.effect.kind, chosen):
+            try:
+                scan_candidate(c, structure, theta, train, proc,
+                               nom.amplitudes[c.loc.between], nom.force_scale,
+                               nom.jacobian, nom.basis)
+            except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
+                c.note = f"scan failed: {exc}"
+            chosen.append(c)
+            if not fit_first(c):
+                continue
+            if c.train_cost <= settings.finalist_ratio * lead.train_cost:
+                fit_more(c)
+            judge(c)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
     stage_cands = cands + sens
