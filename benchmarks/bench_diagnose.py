@@ -59,6 +59,8 @@ import matrix  # noqa: E402
 
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MODEL = ROOT / "examples" / "models" / "lono.toml"
+#: the verdict rule's relevance floor (DiagnoseSettings.gap_min)
+GAP_MIN = 0.005
 
 SYNTHETIC = {
     "syn_quadratic_damper_LO_ground": ("quadratic_damper", ("LO", "ground"), {"c2": 4.0}),
@@ -227,7 +229,14 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
         cpu = [r.get("cpu_s", 0.0) for r in rs]
         print(f"{g:10s} {len(rs):5d} {ok:6d} {100 * ok / len(rs):5.0f}% {false:4d} of {len(nulls):<3d} "
               f"{sum(times) / len(times):7.1f} {max(times):7.1f} {sum(cpu) / len(cpu):10.1f}")
-
+        # effects whose records show no gap above the relevance floor (gap_min): null is
+        # the right answer to what the records show; counted apart as well as in "right"
+        faint = [r for r in rs if r["expected"] and (r["gap_before"] or 0.0) < GAP_MIN]
+        if faint:
+            vis = [r for r in rs if r not in faint]
+            print(f"{'':10s} {sum(r['correct'] for r in vis):5d} right of {len(vis)} with a "
+                  f"visible gap; {len(faint)} below gap_min {GAP_MIN}: "
+                  + ", ".join(r["case"] for r in faint))
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
