@@ -245,7 +245,7 @@ def test_real_coulomb_example_fast(lono, tmp_path):
         diag = diagnose(lono, train, val, "auto",
                         settings=DiagnoseSettings(top_k=2, nominal_nfev=25, fit_nfev=25,
                                                   sensors=False, max_effects=1,
-                                                  runner_ups=1))
+                                                  runner_ups=1, place_check=False))
     out = diag.to_json()
     _check_contract_shape(out)
     kind, between = _expected(folder)

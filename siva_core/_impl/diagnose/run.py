@@ -167,7 +167,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     # the leading structural kind at every other place too: the place is decided by fits
     lead = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
                key=lambda c: c.closure, default=None)
-    if lead is not None and lead.category == "structure" and lead.closure >= settings.step_min:
+    if settings.place_check and lead is not None and lead.category == "structure" \
+            and lead.closure >= settings.step_min:
         for c in other_places(cands, lead.effect.kind, chosen):
             try:
                 scan_candidate(c, structure, theta, train, proc,

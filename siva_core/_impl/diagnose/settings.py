@@ -44,6 +44,8 @@ class DiagnoseSettings:
         gap left before it (and pass the other checks); the set must reach closure_min.
     sensor_gain: the best sensor fault is fitted when correcting the records by its scanned
         value lowers the nominal train cost by at least this share.
+    place_check: once a structural kind leads after the fits, fit it at every other place
+        too (the place is decided by fits, not by the screen; False trades that for time).
     max_effects: most effects named at once (added greedily while each one is significant
         on the validation records).
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
@@ -69,6 +71,7 @@ class DiagnoseSettings:
     stalled: float = 0.5
     step_min: float = 0.25
     sensor_gain: float = 0.2
+    place_check: bool = True
     max_effects: int = 2
     sensors: bool = True
     effects: Sequence[str] | None = None
