@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from browser_support import (chromium_missing, console_errors,  # noqa: E402
                              full_page_screenshot, start_chromium)
 
-from siva_core._impl.diagnose import diagnose, html_report  # noqa: E402
+from siva_core import diagnose, html_report  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
@@ -76,7 +76,7 @@ def test_cli_prints_progress_with_an_eta(tmp_path, capsys):
 
 
 def test_fraction_progress_eta_from_the_mean_rate():
-    from siva_core._impl.progress import FractionProgress
+    from siva_core import FractionProgress
 
     now = [100.0]
     p = FractionProgress("diagnose", clock=lambda: now[0])
