@@ -19,10 +19,21 @@ Cases (the model is always the nominal LO-NO, examples/models/lono.toml):
 * ``sensor_*``: the nominal generator with one faulty sensor (an accelerometer's or the
   force transducer's gain scaled after simulation); the verdict must be that sensor.
 
-Columns: the named effect(s), identified size / true size of each named expected effect,
-closure, gaps, wall time.  At the end: a confusion matrix of kinds.
+* ``--matrix full|reduced`` (``matrix.py``): the confusion-matrix cases on two structures,
+  LO-NO (hammer on NO) and a 3-DOF chain (hammer on the middle mass): every candidate kind
+  at every place the model lacks it, two magnitudes sized from the structure itself, the
+  null, sensor faults (accelerometer gain, channel delay, force gain) and two-effect cases;
+  ``reduced`` takes every kind once per structure (places and sizes rotating) plus the
+  null, the sensor faults and one two-effect case.  Matrix case names
+  (``lono:coulomb:LO-ground:small``) can also be given to ``--cases``.
 
-Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--json FILE] [--verbose]``
+Columns: the named effect(s), identified size / true size of each named expected effect,
+closure, gaps, wall time and CPU time of the process (on a shared machine the wall time
+grows with the other jobs' load; the CPU time is close to an idle machine's wall time).  At the end: a confusion matrix of kinds, and per structure the
+share right (kind and place), false verdicts on nulls and the time per case.
+
+Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--matrix full|reduced]
+[--structures lono,chain3] [--rotate N] [--json FILE] [--verbose]``
 (``SIVA_SHARED_DATA`` points at the shared data when it is not at ../shared/data)
 """
 from __future__ import annotations
@@ -43,8 +54,13 @@ sys.path.insert(0, str(ROOT))
 from siva_core import (Recording, Structure, diagnose, synthetic_impacts,  # noqa: E402
                        with_effect)
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import matrix  # noqa: E402
+
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 MODEL = ROOT / "examples" / "models" / "lono.toml"
+#: the verdict rule's relevance floor (DiagnoseSettings.gap_min)
+GAP_MIN = 0.005
 
 SYNTHETIC = {
     "syn_quadratic_damper_LO_ground": ("quadratic_damper", ("LO", "ground"), {"c2": 4.0}),
@@ -128,19 +144,25 @@ def truth_of(name: str) -> list[dict[str, float]]:
 
 
 def run(name: str, quiet: bool = True) -> dict[str, Any]:
-    structure = duffing_without_cubic_damper() if name.startswith("duffing") \
-        else Structure.from_file(MODEL)
-    train, val, expected = load_case(name, structure)
-    t0 = time.perf_counter()
+    if ":" in name:  # a confusion-matrix case
+        mc = matrix.parse(name)
+        structure = mc.nominal()
+        train, val = mc.records()
+        expected, truths = mc.expected(), mc.truths()
+    else:
+        structure = duffing_without_cubic_damper() if name.startswith("duffing") \
+            else Structure.from_file(MODEL)
+        train, val, expected = load_case(name, structure)
+        truths = truth_of(name)
+    t0, c0 = time.perf_counter(), time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         diag = diagnose(structure, train, val, "auto",
                         progress=None if quiet else (lambda m: print("   ", m, flush=True)))
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     out = diag.to_json()
     got = [(v["kind"], tuple(v["between"])) for v in out["verdicts"]]
     shown = diag.verdict or (diag.ranking[0] if diag.ranking else None)
-    truths = truth_of(name)
     sizes = []
     for (kind, where), coeffs in zip(expected, truths):
         v = next((v for v in out["verdicts"] if (v["kind"], tuple(v["between"])) == (kind, where)),
@@ -162,6 +184,7 @@ def run(name: str, quiet: bool = True) -> dict[str, Any]:
         "coefficients": [v["coefficients"] for v in out["verdicts"]],
         "reason": out["rule"].get("reason"),
         "time_s": elapsed,
+        "cpu_s": cpu,
         "timing_s": out["timing_s"],
     }
 
@@ -190,36 +213,73 @@ def print_confusion(rows: list[dict[str, Any]]) -> None:
         print(f"{e:{width}s}" + "".join(cells))
 
 
+def print_summary(rows: list[dict[str, Any]]) -> None:
+    """Per structure (the part of a matrix case name before ':'): right kind and place,
+    false verdicts on null cases, mean and largest time per case."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(r["case"].split(":")[0] if ":" in r["case"] else "named", []).append(r)
+    print(f"\n{'structure':10s} {'cases':>5s} {'right':>6s} {'share':>6s} {'null false':>10s} "
+          f"{'mean s':>7s} {'max s':>7s} {'mean cpu s':>10s}")
+    for g, rs in groups.items():
+        nulls = [r for r in rs if not r["expected"]]
+        false = sum(1 for r in nulls if r["verdict"])
+        ok = sum(r["correct"] for r in rs)
+        times = [r["time_s"] for r in rs]
+        cpu = [r.get("cpu_s", 0.0) for r in rs]
+        print(f"{g:10s} {len(rs):5d} {ok:6d} {100 * ok / len(rs):5.0f}% {false:4d} of {len(nulls):<3d} "
+              f"{sum(times) / len(times):7.1f} {max(times):7.1f} {sum(cpu) / len(cpu):10.1f}")
+        # effects whose records show no gap above the relevance floor (gap_min): null is
+        # the right answer to what the records show; counted apart as well as in "right"
+        faint = [r for r in rs if r["expected"] and (r["gap_before"] or 0.0) < GAP_MIN]
+        if faint:
+            vis = [r for r in rs if r not in faint]
+            print(f"{'':10s} {sum(r['correct'] for r in vis):5d} right of {len(vis)} with a "
+                  f"visible gap; {len(faint)} below gap_min {GAP_MIN}: "
+                  + ", ".join(r["case"] for r in faint))
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: " + ", ".join(CASES))
+    ap.add_argument("--matrix", choices=("full", "reduced"),
+                    help="run the confusion-matrix cases instead of --cases")
+    ap.add_argument("--structures", default="lono,chain3",
+                    help="structures of --matrix: " + ", ".join(matrix.STRUCTURES))
+    ap.add_argument("--rotate", type=int, default=0,
+                    help="--matrix reduced: shift places, sizes and sensor channels by this")
     ap.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     ap.add_argument("--verbose", action="store_true", help="progress of each diagnosis")
     args = ap.parse_args()
     rows = []
     head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
-            f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s}")
+            f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s} {'cpu_s':>7s}")
     print(head)
-    for name in args.cases.split(","):
+    names = (matrix.case_names(args.matrix, args.structures.split(","), args.rotate)
+             if args.matrix
+             else args.cases.split(","))
+    print(f"{len(names)} cases", flush=True)
+    for name in names:
         try:
             row = run(name.strip(), quiet=not args.verbose)
         except Exception as exc:  # noqa: BLE001 - a case that fails counts as wrong
             row = {"case": name.strip(), "expected": "?", "verdict": f"ERROR {exc}"[:60],
                    "correct": False, "first_right": False, "size_ratio": [],
                    "closure": None, "gap_before": None, "gap_after": None,
-                   "coefficients": None, "reason": str(exc), "time_s": 0.0, "timing_s": {}}
+                   "coefficients": None, "reason": str(exc), "time_s": 0.0, "cpu_s": 0.0,
+                   "timing_s": {}}
         rows.append(row)
         fmt = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
         print(f"{row['case']:32s} {str(row['expected']):24s} {str(row['verdict']):24s} "
               f"{' '.join(f'{x:.3f}' for x in row['size_ratio']) or '-':12s} "
               f"{'yes' if row['correct'] else 'NO ':3s} {fmt(row['closure']):>8s} "
               f"{fmt(row['gap_before']):>10s} {fmt(row['gap_after']):>10s} "
-              f"{row['time_s']:7.1f}", flush=True)
+              f"{row['time_s']:7.1f} {row.get('cpu_s', 0.0):7.1f}", flush=True)
         if args.verbose:
             print(f"    coefficients {row['coefficients']}; rule: {row['reason']}")
     n_ok = sum(r["correct"] for r in rows)
     print(f"{n_ok}/{len(rows)} verdicts as expected; total {sum(r['time_s'] for r in rows):.0f} s")
     print_confusion(rows)
+    print_summary(rows)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2, default=float) + "\n")
     return 0 if n_ok == len(rows) else 1

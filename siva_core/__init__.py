@@ -57,7 +57,7 @@ _export("elements", "ElementKind", "register_element", ELEMENT_KINDS="REGISTRY")
 _export("recording", "Recording", "RecordingError")
 _export("formats", "RecordingTooLarge", "register_format", "sniff_format", "resolve_format",
         "media_types", "MCAP_MAGIC", "ReadLimits", RECORDING_FORMATS="REGISTRY")
-_export("progress", "Eta", "EpochProgress")
+_export("progress", "Eta", "EpochProgress", "FractionProgress")
 _export("mcap_recording", "read_mcap_recording", "write_mcap_recording", "mcap_bytes")
 _export("processing", "Processing", "States", "simulated_recording", "central_difference")
 _export("impulse", "detect_impulse", "Impulse")
@@ -111,7 +111,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.formats import REGISTRY as RECORDING_FORMATS
     from ._impl.formats import (MCAP_MAGIC, ReadLimits, RecordingTooLarge, media_types,
                                 register_format, resolve_format, sniff_format)
-    from ._impl.progress import EpochProgress, Eta
+    from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                output_error, refine)
     from ._impl.report import write_report

@@ -61,6 +61,20 @@ def duffing_model(model_paths: dict[str, Path]) -> Structure:
 
 
 @pytest.fixture(scope="session")
+def duffing_without_cubic_damper(duffing_model: Structure, shared_data: Path
+                                 ) -> tuple[Structure, list[Recording], list[Recording]]:
+    """The paper's Duffing with its cubic damper withheld, train 5 m/s, validate 3 + 8 m/s
+    (a fast diagnosis case: 1 DOF, free decays, noise-free)."""
+    spec = dict(duffing_model.spec)
+    spec["elements"] = [e for e in spec["elements"] if e["kind"] != "cubic_damper"]
+    model = Structure.from_dict(spec)
+    folder = shared_data / "duffing"
+    train = [Recording.read(folder / "train_v5.csv", model.dofs)]
+    val = [Recording.read(folder / f, model.dofs) for f in ("val_v3.csv", "val_v8.csv")]
+    return model, train, val
+
+
+@pytest.fixture(scope="session")
 def lono_model(model_paths: dict[str, Path]) -> Structure:
     return Structure.from_file(model_paths["lono"])
 

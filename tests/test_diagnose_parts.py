@@ -11,7 +11,7 @@ import pytest
 from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.model_spec import element_block, spec_toml
-from siva_core._impl.diagnose.screening import select_for_fit
+from siva_core._impl.diagnose.screening import other_places, select_for_fit
 from siva_core._impl.diagnose.sensor_faults import ACC_GAIN, CHANNEL_DELAY, corrected
 from siva_core._impl.diagnose.sensors import sensor_candidates
 from siva_core._impl.diagnose.signatures import amplitude_signatures
@@ -89,6 +89,25 @@ def test_the_fit_stage_keeps_every_family_that_could_win():
     assert kinds.count("cubic_damper") == 2 and "spring" not in kinds
 
 
+def test_the_leading_kind_is_fitted_at_every_other_place():
+    """Once a kind leads after the fits, every place of that kind not fitted yet gets a
+    fit (the best-scoring shape at each), strongest first."""
+    places = [Location(0, -1, ("LO", "ground")), Location(1, -1, ("NO", "ground")),
+              Location(0, 1, ("LO", "NO"))]
+    cands = []
+    for loc, score in zip(places, (0.5, 0.3, 0.01)):
+        for shape_score in (score, score / 2):  # two shapes per place: the better is kept
+            c = Candidate(EFFECTS["quadratic_damper"], loc, {})
+            c.score = shape_score
+            cands.append(c)
+    other = Candidate(EFFECTS["coulomb"], places[2], {})
+    other.score = 0.9
+    fitted = [cands[0]]
+    got = other_places([*cands, other], "quadratic_damper", fitted)
+    assert [c.loc.between for c in got] == [("NO", "ground"), ("LO", "NO")]
+    assert [c.score for c in got] == [0.3, 0.01]
+
+
 @pytest.mark.parametrize("kind,coeffs,lo,hi", [
     ("quadratic_damper", {"c2": 30.0}, 0.5, 1.5),
     ("cubic_damper", {"c3": 4.0e5}, 1.3, 2.6),
@@ -105,3 +124,45 @@ def test_damping_exponent_tells_quadratic_from_cubic_damping(kind, coeffs, lo, h
     sig = amplitude_signatures(sdof, sdof.vector({"c": 0.05, "k": 4000.0}), recs, proc, None)
     p = sig["modes"][0]["measured"]["damping_exponent"]
     assert lo < p < hi, (p, sig["reading"])
+
+
+def test_sensor_fits_add_the_force_gain_beside_a_response_gain():
+    """A scan that finds an accelerometer gain also sends the force gain to the fit stage
+    (with known masses a force gain is a common gain of every response channel)."""
+    from siva_core._impl.diagnose.sensors import sensor_fits
+
+    recs = [Recording.from_columns({"time": np.arange(32) / 100.0, "acc_x": np.ones(32),
+                                    "force_x": np.ones(32)}, ["x"], name="r")]
+    sens = sensor_candidates(Structure.from_dict(SDOF), recs)
+    costs = {"accelerometer_gain": 0.4, "channel_delay": 0.95, "force_gain": 0.9}
+    for c in sens:
+        c.scan_cost = costs[c.effect.kind]
+        c.coefficients = {c.effect.magnitude: 1.1}
+    picked = [c.effect.kind for c in sensor_fits(sens, 1.0, DiagnoseSettings())]
+    assert picked == ["accelerometer_gain", "force_gain"]
+    for c in sens:  # nothing beats the nominal model: no sensor fit at all
+        c.scan_cost = 0.99
+    assert sensor_fits(sens, 1.0, DiagnoseSettings()) == []
+
+
+def test_matrix_sizes_come_from_the_structure():
+    """The confusion-matrix benchmark's cases: sizes derived from each structure's response
+    (two sizes, the small cubic spring softening), no case where the model has the kind."""
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import matrix
+
+    for rig in ("lono", "chain3"):
+        names = matrix.case_names("full", [rig])
+        assert f"{rig}:null" in names and len(names) == len(set(names))
+        st = matrix.STRUCTURES[rig].nominal()
+        for kind in matrix.KINDS:
+            for place in matrix.places(st):
+                inside = f"{rig}:{kind}:{place}:small" in names
+                assert inside != matrix._has(st, kind, place)
+        small = matrix.coefficients(rig, "quadratic_damper", matrix.places(st)[0], "small")
+        large = matrix.coefficients(rig, "quadratic_damper", matrix.places(st)[0], "large")
+        assert large["c2"] / small["c2"] == pytest.approx(10 / 3, rel=0.01)
+        assert matrix.coefficients(rig, "cubic_spring", matrix.places(st)[0], "small")["k3"] < 0
+    assert "lono:damper:LO-ground:small" not in matrix.case_names("full", ["lono"])
+    assert len(matrix.case_names("reduced", ["lono"])) < len(matrix.case_names("full", ["lono"]))

@@ -65,3 +65,33 @@ class EpochProgress:
         stream = self.stream or sys.stderr
         print(f"{self.what}: {self.eta.text(done)}{'  ' + extra if extra else ''}",
               file=stream, flush=True)
+
+
+class FractionProgress:
+    """Progress of a run that reports the fraction done (diagnose): ``diagnose: 35 %,
+    42 s elapsed, ETA 1 min 18 s``.  The ETA assumes the rest goes at the mean rate so far;
+    for diagnose, whose later stages may be skipped, it is an upper bound."""
+
+    def __init__(self, what: str, *, every_s: float = 2.0, stream: TextIO | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.what = what
+        self.every_s = every_s
+        self.stream = stream
+        self.clock = clock
+        self.t0 = clock()
+        self._last = -float("inf")
+
+    def text(self, fraction: float) -> str:
+        f = min(max(float(fraction), 0.0), 1.0)
+        elapsed = self.clock() - self.t0
+        head = f"{self.what}: {100 * f:.0f} %, {human_seconds(elapsed)} elapsed"
+        if f <= 0 or f >= 1:
+            return head
+        return f"{head}, ETA {human_seconds(elapsed * (1 - f) / f)}"
+
+    def update(self, fraction: float, *, force: bool = False) -> None:
+        now = self.clock()
+        if not force and now - self._last < self.every_s:
+            return
+        self._last = now
+        print(self.text(fraction), file=self.stream or sys.stderr, flush=True)

@@ -6,6 +6,7 @@ import json
 import sys
 from pathlib import Path
 
+from ..progress import FractionProgress
 from ..recording import Recording
 from ..structure import Structure
 from .model_spec import write_model
@@ -20,9 +21,14 @@ def diagnose_command(args: argparse.Namespace) -> int:
     structure = Structure.from_file(args.model)
     train = [Recording.read(p, structure.dofs) for p in args.train]
     val = [Recording.read(p, structure.dofs) for p in args.val]
-    progress = None if getattr(args, "quiet", False) else _stderr
+    quiet = getattr(args, "quiet", False)
+    progress = None if quiet else _stderr
+    # the stage lines say what is done; the fraction lines when it will be over
+    eta = None if quiet else FractionProgress("diagnose", every_s=5.0)
     diag = diagnose(structure, train, val, getattr(args, "processing", "auto"),
-                    progress=progress)
+                    progress=progress, fraction=eta.update if eta else None)
+    if eta:
+        eta.update(1.0, force=True)
     text = json.dumps(diag.to_json(), indent=2)
     if getattr(args, "out", None):
         Path(args.out).write_text(text + "\n")

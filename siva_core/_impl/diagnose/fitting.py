@@ -14,7 +14,7 @@ from ..structure import Structure
 from .model_edit import augmented
 from .nominal import _plausible
 from .results import Candidate
-from .settings import DiagnoseSettings
+from .settings import FAST, DiagnoseSettings
 
 
 #: magnitudes of the coarse scan, as fractions of the effect's "typical" magnitude (the
@@ -24,8 +24,8 @@ SCAN_FRACTIONS = tuple(float(x) for x in np.logspace(-4.0, -0.5, 8))
 
 
 def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.ndarray,
-             structure: Structure, amp: Amplitudes, force_scale: float
-             ) -> list[np.ndarray]:
+             structure: Structure, amp: Amplitudes, force_scale: float,
+             fractions: Sequence[float] = SCAN_FRACTIONS) -> list[np.ndarray]:
     """Start sets of the coarse scan: for each shape of the effect's grid, the magnitude on
     a log grid (both signs when the coefficient is unsigned), nominal parameters at the
     nominal fit.  One batch per shape and sign (a batch takes the substeps of its stiffest
@@ -38,7 +38,7 @@ def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.
     out = []
     for shape in eff.shape_grid(amp):
         typical = eff.typical_magnitude(amp, shape, force_scale)
-        mags = [f * typical for f in SCAN_FRACTIONS]
+        mags = [f * typical for f in fractions]
         for sign in signs:
             batch = []
             for m in mags:
@@ -183,7 +183,8 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             best_cost, th0 = float(costs[k]), batch[k]
     if th0 is None:
         raise ValueError("every start diverges")
-    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev)
+    res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev,
+                 uncertainty=FAST)
     c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
     j = aug.free.index(names[eff.magnitude])
     scan_starts = [t for t in scan_starts if not _near(t[j], res.theta[j])]
@@ -194,7 +195,8 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
         try:
             costs = output_error(aug, np.stack(scan_starts), list(train), proc)
             k = int(np.argmin(costs))
-            res2 = refine(aug, scan_starts[k], list(train), proc, max_nfev=settings.fit_nfev)
+            res2 = refine(aug, scan_starts[k], list(train), proc,
+                          max_nfev=settings.fit_nfev, uncertainty=FAST)
             c2 = float(output_error(aug, res2.theta[None], list(train), proc)[0])
             if c2 < c_ref:
                 res, c_ref = res2, c2
@@ -210,6 +212,46 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     c.train_cost = cost
     c.fitted = True
     c.fit_time_s = time.perf_counter() - t0
+
+
+def continue_fit(c: Candidate, train: Sequence[Recording], proc: Processing,
+                 nfev: int) -> None:
+    """More evaluations for a finalist of the first, cheaper round of fits: refine from
+    its fit on the full records (no horizons: it is in its basin already); kept when the
+    train cost improves."""
+    from ..refine import output_error, refine
+
+    if c.structure is None or c.theta is None or nfev <= 0:
+        return
+    t0 = time.perf_counter()
+    recs = list(c.correct(train))
+    res = refine(c.structure, c.theta, recs, proc, max_nfev=nfev, horizons=None,
+                 uncertainty=FAST)
+    cost = float(output_error(c.structure, res.theta[None], recs, proc)[0])
+    if cost < c.train_cost:
+        c.theta, c.train_cost = res.theta, cost
+        vals = c.structure.as_dict(res.theta)
+        if c.category == "structure" and c.names:
+            c.coefficients = {k: vals[p] for k, p in c.names.items()}
+            c.intervals = _intervals(res, c.structure, c.names)
+            c.parameters = {p: v for p, v in vals.items() if p not in c.names.values()}
+        else:
+            c.parameters = vals
+    c.fit_time_s += time.perf_counter() - t0
+
+
+def bootstrap_intervals(c: Candidate, train: Sequence[Recording], proc: Processing) -> None:
+    """The named effect's 95 % intervals with refine's bootstrap (the fits inside the
+    diagnosis use Gauss-Newton only, see ``settings.FAST``): a refine started at the fit's
+    optimum on the full records, a few evaluations, its theta not taken (the verdict stays
+    the one the validation records judged)."""
+    from ..refine import refine
+
+    if c.category != "structure" or c.structure is None or c.theta is None or not c.names:
+        return
+    res = refine(c.structure, c.theta, list(c.correct(train)), proc, max_nfev=5,
+                 horizons=None)
+    c.intervals = _intervals(res, c.structure, c.names)
 
 
 def _near(a: float, b: float, factor: float = 3.0) -> bool:

@@ -11,7 +11,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .outputs import Progress, _say
-from .settings import DiagnoseSettings
+from .settings import FAST, DiagnoseSettings
 
 
 def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
@@ -120,7 +120,8 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
     ls = [(c, th, ch) for c, (_, th, ch) in zip(costs, starts) if ch is not None]
     ls_cost, ls_theta, ls_chain = min(ls, key=lambda x: x[0]) if ls else (0, None, None)
     _say(progress, f"nominal start: {label} (train cost {costs[best]:.4g})")
-    res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev)
+    res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev,
+                 uncertainty=FAST)
     c = float(output_error(structure, res.theta[None], list(train), proc)[0])
     if c <= costs[best]:
         return NominalFit(res.theta, c, label, ls_theta, ls_chain)

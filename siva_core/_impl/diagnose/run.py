@@ -3,6 +3,7 @@ candidate fits (structural and sensor), each stage adding the effect it finds wh
 effect is significant on the validation records; then where and the signatures."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import Any, Callable, Sequence
@@ -13,12 +14,12 @@ from ..effects import EFFECTS, Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .fitting import fit_candidate, scan_candidate
+from .fitting import bootstrap_intervals, continue_fit, fit_candidate, scan_candidate
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate, Diagnosis, _num
-from .screening import ee_screen, screen, select_for_fit
-from .sensors import fit_sensor, scan_sensor, sensor_candidates
+from .screening import ee_screen, other_places, screen, select_for_fit
+from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
@@ -68,6 +69,24 @@ def _combined_closure(verdicts: Sequence[Candidate], gap_before: float) -> float
     return float(1.0 - verdicts[-1].gap_after / gap_before)
 
 
+def finalists(chosen: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candidate]:
+    """The fitted candidates that get the second round: the ``finalists`` best by train
+    cost, plus any within ``finalist_ratio`` of the best (a close rival must be fitted as
+    well as the leader: the verdict's separation check compares their gaps), plus the
+    best of the leading candidate's best rival kind."""
+    fitted = sorted((c for c in chosen if c.fitted and np.isfinite(c.train_cost)),
+                    key=lambda c: c.train_cost)
+    if not fitted:
+        return []
+    best = fitted[0].train_cost
+    out = [c for k, c in enumerate(fitted)
+           if k < settings.finalists or c.train_cost <= settings.finalist_ratio * best]
+    rival = next((c for c in fitted if c.effect.kind != fitted[0].effect.kind), None)
+    if rival is not None and rival not in out:
+        out.append(rival)
+    return out
+
+
 def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
            val: Sequence[Recording], proc: Processing, effects: Sequence[Effect],
            settings: DiagnoseSettings, gap_before: float, before_blocks: np.ndarray,
@@ -99,26 +118,31 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     _say(progress, f"fitted next: {', '.join(c.label() for c in chosen)}; scans (train cost, "
                    f"nominal {fit.train_cost:.4g}): "
                    + ", ".join(f"{c.label()} {c.scan_cost:.4g}" for c in scanned[:8]))
-    # the two best sensor faults of different kinds whose scan clearly beats the nominal
-    kinds: set[str] = set()
-    for c in sorted(sens, key=lambda c: c.scan_cost):
-        if len(kinds) < 2 and c.effect.kind not in kinds and \
-                c.scan_cost <= (1 - settings.sensor_gain) * fit.train_cost:
-            kinds.add(c.effect.kind)
-            chosen.append(c)
+    chosen += sensor_fits(sens, fit.train_cost, settings)
     t0 = time.perf_counter()
-    for k, c in enumerate(chosen):
+    first = dataclasses.replace(settings, fit_nfev=min(settings.first_nfev, settings.fit_nfev))
+
+    def fit_first(c: Candidate) -> bool:
         try:
             if c.category == "sensor":
-                fit_sensor(c, structure, theta, train, proc, settings)
+                fit_sensor(c, structure, theta, train, proc, first)
             else:
                 fit_candidate(c, structure, theta, train, proc,
-                              nom.amplitudes[c.loc.between], settings, nom.force_scale,
+                              nom.amplitudes[c.loc.between], first, nom.force_scale,
                               fit.train_cost)
+            return True
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")
-            continue
+            return False
+
+    def fit_more(c: Candidate) -> None:
+        try:
+            continue_fit(c, train, proc, settings.fit_nfev - first.fit_nfev)
+        except Exception as exc:  # noqa: BLE001 - the first fit stands
+            _say(progress, f"{c.label()}: second round failed ({exc})")
+
+    def judge(c: Candidate) -> None:
         c.gap_before = gap_before
         c.gap_after, after_blocks = _gap(c.structure, c.theta, c.correct(val), proc)
         c.closure = 1.0 - c.gap_after / gap_before if gap_before > 0 else 0.0
@@ -129,9 +153,35 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                                  "gap_after": _num(ga),
                                  "closure": _num(1 - ga / gb) if gb > 0 else None})
         _say(progress, f"{c.label()}: closure {c.closure:.3f} (val gap {gap_before:.4g} -> "
-                       f"{c.gap_after:.4g}; {c.fit_time_s:.1f} s) "
+                       f"{c.gap_after:.4g}; train {c.train_cost:.4g}; {c.fit_time_s:.1f} s) "
                        + ", ".join(f"{k}={v:.4g}" for k, v in c.coefficients.items()))
-        fraction(0.4 + 0.6 * (k + 1) / max(len(chosen), 1))
+
+    for k, c in enumerate(chosen):
+        fit_first(c)
+        fraction(0.4 + 0.4 * (k + 1) / max(len(chosen), 1))
+    for c in finalists(chosen, settings):
+        fit_more(c)
+    fraction(0.9)
+    for c in (c for c in chosen if c.fitted):
+        judge(c)
+    # the leading structural kind at every other place too: the place is decided by fits
+    lead = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
+               key=lambda c: c.closure, default=None)
+    if settings.place_check and lead is not None and lead.category == "structure" \
+            and lead.closure >= settings.step_min:
+        for c in other_places(cands, lead.effect.kind, chosen):
+            try:
+                scan_candidate(c, structure, theta, train, proc,
+                               nom.amplitudes[c.loc.between], nom.force_scale,
+                               nom.jacobian, nom.basis)
+            except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
+                c.note = f"scan failed: {exc}"
+            chosen.append(c)
+            if not fit_first(c):
+                continue
+            if c.train_cost <= settings.finalist_ratio * lead.train_cost:
+                fit_more(c)
+            judge(c)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
     stage_cands = cands + sens
@@ -205,6 +255,10 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         if v is None:
             _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
             break
+        try:
+            bootstrap_intervals(v, cur_train, proc)
+        except Exception as exc:  # noqa: BLE001 - the Gauss-Newton intervals stand
+            _say(progress, f"{v.label()}: bootstrap interval failed ({exc})")
         verdicts.append(v)
         _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
                        f"{cur_gap:.4g}")

@@ -292,6 +292,25 @@ def select_for_fit(cands: Sequence[Candidate], settings: DiagnoseSettings
     return chosen
 
 
+def other_places(cands: Sequence[Candidate], kind: str, fitted: Sequence[Candidate]
+                 ) -> list[Candidate]:
+    """The best-scoring candidate (shape) of ``kind`` at every location not fitted yet,
+    strongest first: once a kind leads after the fits, its place is decided by fits at
+    every place, not by the screen (measured: a velocity-squared damper LO-NO screened
+    third of its kind behind LO-ground and NO-ground, and NO-ground was named)."""
+    done = {c.loc.between for c in fitted if c.effect.kind == kind}
+    best: dict[tuple[str, str], Candidate] = {}
+    for c in scan_targets(cands):
+        if c.effect.kind != kind or c.loc.between in done:
+            continue
+        s = max(c.score if c.admissible else 0.0, c.ee_score)
+        b = best.get(c.loc.between)
+        if b is None or s > max(b.score if b.admissible else 0.0, b.ee_score):
+            best[c.loc.between] = c
+    return sorted(best.values(), key=lambda c: -max(c.score if c.admissible else 0.0,
+                                                    c.ee_score))
+
+
 def scan_targets(cands: Sequence[Candidate]) -> list[Candidate]:
     """Every candidate the coarse magnitude scan visits: all but those the model already
     represents or whose sensitivity run diverged (an inadmissible screening sign does not

@@ -4,6 +4,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
+#: refine's uncertainty for every fit inside a diagnosis: Gauss-Newton, no simulation.
+#: refine's default bootstrap simulates ~70 force-noise replicates per record (measured:
+#: 3 s of a 6.5 s refine on LO-NO), needed only for the named effects' intervals, which
+#: ``fitting.bootstrap_intervals`` computes once at the end.
+FAST = "gauss-newton"
+
 
 @dataclass
 class DiagnoseSettings:
@@ -13,6 +19,10 @@ class DiagnoseSettings:
     max_per_kind: at most this many locations of one kind among them, so that a rival of a
         different kind is always fitted (the verdict compares against it).
     nominal_nfev / fit_nfev: cost-evaluation budgets of the nominal and candidate fits.
+    first_nfev: every chosen candidate is first fitted with this budget; only the
+        ``finalists`` best by train cost (and any within ``finalist_ratio`` of the best)
+        get the rest of ``fit_nfev`` on the full records (successive halving: the losers'
+        half fits already show they lose, measured ~half of the fit time).
     closure_min: least validation closure for a verdict (share of the gap removed).
     separation: the verdict's gap_after must be at most this fraction of the best
         other-kind candidate's gap_after.
@@ -34,6 +44,8 @@ class DiagnoseSettings:
         gap left before it (and pass the other checks); the set must reach closure_min.
     sensor_gain: the best sensor fault is fitted when correcting the records by its scanned
         value lowers the nominal train cost by at least this share.
+    place_check: once a structural kind leads after the fits, fit it at every other place
+        too (the place is decided by fits, not by the screen; False trades that for time).
     max_effects: most effects named at once (added greedily while each one is significant
         on the validation records).
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
@@ -45,6 +57,9 @@ class DiagnoseSettings:
     max_per_kind: int = 2
     nominal_nfev: int = 40
     fit_nfev: int = 40
+    first_nfev: int = 20
+    finalists: int = 3
+    finalist_ratio: float = 3.0
     closure_min: float = 0.5
     separation: float = 0.75
     record_tolerance: float = 0.05
@@ -56,6 +71,7 @@ class DiagnoseSettings:
     stalled: float = 0.5
     step_min: float = 0.25
     sensor_gain: float = 0.2
+    place_check: bool = True
     max_effects: int = 2
     sensors: bool = True
     effects: Sequence[str] | None = None
