@@ -36,6 +36,7 @@ UNREACHABLE_AFTER_S = 5.0
 #: DRIFT_WAIT_S for a newer one; one read keeps the copy refreshed for DRIFT_WANTED_S
 DRIFT_FRESH_S = 2.0
 DRIFT_WAIT_S = 0.4
+DRIFT_FIRST_WAIT_S = 10.0
 DRIFT_WANTED_S = 60.0
 
 
@@ -122,13 +123,16 @@ class RayTrainer:
     def drift_report(self) -> dict[str, Any]:
         """The drift report, fetched on demand: a report holds up to SIVA_HISTORY_LIMIT
         snapshots (about 1 MB), too much for every poll.  A read waits at most
-        ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S``, else gets the last copy;
-        the poller keeps a report that was read in the last minute fresh."""
+        ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S`` (the first read of a
+        system ``DRIFT_FIRST_WAIT_S``), else gets the last copy; the poller keeps a report
+        that was read in the last minute fresh."""
         now = time.monotonic()
         self.drift_wanted_until = now + DRIFT_WANTED_S
         if now - self.drift_at > DRIFT_FRESH_S:
             self.request_drift()
-            self.collect_drift(timeout=DRIFT_WAIT_S)
+            # the first read has only the copy of the start (no history yet): worth a wait
+            first = self.drift_at < 0
+            self.collect_drift(timeout=DRIFT_FIRST_WAIT_S if first else DRIFT_WAIT_S)
         return self._drift
 
     def request_drift(self) -> None:
