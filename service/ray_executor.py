@@ -8,7 +8,8 @@ each asking ``SIVA_RAY_CPUS_PER_ACTOR`` logical CPUs, spread over the cluster's 
 dir; a front that dies (kill -9) finds its actors again by name when it restarts.
 
 The front never blocks on an actor in a read: one poller thread fetches, every
-``SIVA_RAY_POLL_S``, each host's changed snapshots and its queued event-log entries, which it writes to the MCAP log in order (acknowledging them on the next poll).
+``SIVA_RAY_POLL_S``, each host's changed snapshots and its queued event-log entries, which
+it writes to the MCAP log in order (acknowledging them on the next poll).
 A new actor incarnation (a restart) starts a new log segment for its systems, as a
 restarted trainer thread does, so ``siva replay`` stitches the segments.
 """
@@ -22,9 +23,9 @@ from typing import Any
 
 from siva_core import Structure
 
+from .errors import ApiError
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
-from .errors import ApiError
 from .settings import Settings
 from .worker import base_snapshot
 
@@ -188,8 +189,9 @@ class RayTrainer:
     def update(self, entry: dict[str, Any]) -> None:
         """Poller thread: take what a poll brought (reference swaps only)."""
         status = entry.get("status") or {}
-        if self.generation is not None and status.get("generation") not in (None,
-                                                                            self.generation):
+        if self.generation is None:  # a restarted host numbers its systems anew
+            self.generation = status.get("generation")
+        elif status.get("generation") not in (None, self.generation):
             return  # another generation of this system (the supervisor replaced it)
         if "snapshot" in entry:
             self._snapshot = entry["snapshot"]
@@ -399,9 +401,11 @@ class RayExecutor:
         self._info[hid] = {k: res.get(k) for k in ("pid", "node", "incarnation")}
         acked = self._acked.setdefault(hid, {})
         for name, entry in res["systems"].items():
+            handle = self._handles.get(name)
             if restarted:
                 self._event("rotate", name)  # a new segment, as after a process restart
-            handle = self._handles.get(name)
+                if handle is not None and handle.generation is not None:
+                    handle.generation = None  # adopt the new incarnation's numbering
             if handle is not None:
                 handle.update(entry)
             for seq, method, args, kw in entry.get("events", []):
