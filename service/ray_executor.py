@@ -39,6 +39,8 @@ DRIFT_FRESH_S = 2.0
 DRIFT_WAIT_S = 0.4
 DRIFT_FIRST_WAIT_S = 10.0
 DRIFT_WANTED_S = 60.0
+#: a worker that has not seen the store's newest recording this long is notified again
+RENOTIFY_AFTER_S = 5.0
 
 
 class RayTrainer:
@@ -63,6 +65,7 @@ class RayTrainer:
         self.drift_at = -1e9                     # time.monotonic() of the drift copy
         self.drift_ref: Any = None               # a drift report on its way
         self.drift_wanted_until = -1e9           # keep it fresh until then (it is read)
+        self._behind_since: float | None = None  # the worker lags the store since then
 
     # ------------------------------------------------------------------ control
     def start(self) -> None:
@@ -84,6 +87,7 @@ class RayTrainer:
         entry = first["systems"].get(self.name)
         if entry is not None:
             self.update(entry)
+        self.notify()  # a found-running worker may have missed a notify (front killed)
 
     def notify(self) -> None:
         try:
@@ -201,6 +205,29 @@ class RayTrainer:
         self.epoch = int(status.get("epoch", self.epoch))
         self.heartbeat = time.monotonic() - float(status.get("heartbeat_age_s", 0.0))
         self.checkpoint_error = status.get("checkpoint_error")
+        self._check_caught_up(status.get("last_index"))
+
+    def _check_caught_up(self, seen: int | None) -> None:
+        """Notify again when the worker has not seen the store's newest recording for
+        ``RENOTIFY_AFTER_S``: a notify is fire-and-forget, and one sent just before the
+        front was killed may never have left it."""
+        if seen is None or self._stopping:
+            return
+        try:
+            metas = self.executor.store.recordings(self.name)
+        except Exception:  # noqa: BLE001 - deleted meanwhile
+            return
+        if not metas or metas[-1].index <= seen:
+            self._behind_since = None
+            return
+        now = time.monotonic()
+        if self._behind_since is None:
+            self._behind_since = now
+        elif now - self._behind_since >= RENOTIFY_AFTER_S:
+            log.debug("%s: the trainer has not seen recording %d yet; notifying again",
+                     self.name, metas[-1].index)
+            self._behind_since = now
+            self.notify()
 
 
 class RayExecutor:

@@ -186,7 +186,8 @@ class TrainerHost:
             entry: dict[str, Any] = {"status": {
                 "generation": self.generation.get(name), "alive": w.alive, "died": w.died,
                 "stopping": w.stopping, "error": w.error, "epoch": int(w.epoch),
-                "heartbeat_age_s": now - w.heartbeat, "checkpoint_error": w.checkpoint_error}}
+                "heartbeat_age_s": now - w.heartbeat, "checkpoint_error": w.checkpoint_error,
+                "last_index": int(w.buffer.last_index)}}
             if full or sent is None or sent[0] is not snap:
                 entry["snapshot"] = snap
             if full or sent is None:
