@@ -214,10 +214,10 @@ class RayTrainer:
         if seen is None or self._stopping:
             return
         try:
-            metas = self.executor.store.recordings(self.name)
+            newest = self.executor.store.last_index(self.name)
         except Exception:  # noqa: BLE001 - deleted meanwhile
             return
-        if not metas or metas[-1].index <= seen:
+        if newest <= seen:
             self._behind_since = None
             return
         now = time.monotonic()
@@ -225,7 +225,7 @@ class RayTrainer:
             self._behind_since = now
         elif now - self._behind_since >= RENOTIFY_AFTER_S:
             log.debug("%s: the trainer has not seen recording %d yet; notifying again",
-                     self.name, metas[-1].index)
+                      self.name, newest)
             self._behind_since = now
             self.notify()
 

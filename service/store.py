@@ -144,10 +144,14 @@ class _System:
     lock: threading.Lock
 
     def counts(self) -> dict[str, int]:
-        c = {r: 0 for r in ROLES}
-        for m in self.recordings:
-            c[m.role] += 1
-        return c
+        return _role_counts(self.recordings)
+
+
+def _role_counts(metas: Iterable[RecordingMeta]) -> dict[str, int]:
+    c = {r: 0 for r in ROLES}
+    for m in metas:
+        c[m.role] += 1
+    return c
 
 
 def auto_role(index: int, counts: dict[str, int], every: int) -> str:
@@ -358,6 +362,12 @@ class Store:
     def recording(self, name: str, rid: str) -> RecordingMeta:
         return _find_recording(self.recordings(name), name, rid)
 
+    def last_index(self, name: str) -> int:
+        """Arrival index of the newest recording (0: none), without copying the list."""
+        s = self._get(name)
+        with s.lock:
+            return s.recordings[-1].index if s.recordings else 0
+
     def counts(self, name: str) -> dict[str, int]:
         s = self._get(name)
         with s.lock:
@@ -457,10 +467,7 @@ class TrainerStoreView:
         return _find_recording(self.recordings(name), name, rid)
 
     def counts(self, name: str) -> dict[str, int]:
-        c = {r: 0 for r in ROLES}
-        for m in self.recordings(name):
-            c[m.role] += 1
-        return c
+        return _role_counts(self.recordings(name))
 
     def read_raw(self, name: str, meta: RecordingMeta) -> bytes:
         return (self._dir(name) / "recordings" / _raw_name(meta.id, meta.fmt)).read_bytes()
