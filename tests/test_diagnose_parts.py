@@ -11,7 +11,7 @@ import pytest
 from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.model_spec import element_block, spec_toml
-from siva_core._impl.diagnose.screening import other_places, select_for_fit
+from siva_core._impl.diagnose.screening import other_kinds, other_places, select_for_fit
 from siva_core._impl.diagnose.sensor_faults import ACC_GAIN, CHANNEL_DELAY, corrected
 from siva_core._impl.diagnose.sensors import sensor_candidates
 from siva_core._impl.diagnose.signatures import amplitude_signatures
@@ -106,6 +106,28 @@ def test_the_leading_kind_is_fitted_at_every_other_place():
     got = other_places([*cands, other], "quadratic_damper", fitted)
     assert [c.loc.between for c in got] == [("NO", "ground"), ("LO", "NO")]
     assert [c.score for c in got] == [0.3, 0.01]
+
+
+def test_look_alike_kinds_are_fitted_at_the_leading_place():
+    """At the leading candidate's place, every other kind that acts alike (restoring for a
+    spring, dissipating for a damper) not fitted there yet gets a fit, strongest first;
+    other places and the other role are left to the place check and the screen."""
+    here, there = Location(1, -1, ("m2", "ground")), Location(0, 1, ("m1", "m2"))
+    scores = [("clearance", here, 0.05), ("spring", here, 0.2), ("cubic_spring", here, 0.4),
+              ("quadratic_spring", here, 0.0), ("coulomb", here, 0.9),
+              ("clearance", there, 0.8)]
+    cands = []
+    for kind, loc, score in scores:
+        c = Candidate(EFFECTS[kind], loc, {})
+        c.score = score
+        cands.append(c)
+    lead = cands[2]  # cubic_spring m2-ground, fitted
+    got = other_kinds(cands, lead, [lead])
+    assert [(c.effect.kind, c.loc.between) for c in got] == [
+        ("spring", ("m2", "ground")), ("clearance", ("m2", "ground")),
+        ("quadratic_spring", ("m2", "ground"))]
+    damper_lead = cands[4]
+    assert [c.effect.kind for c in other_kinds(cands, damper_lead, [damper_lead])] == []
 
 
 @pytest.mark.parametrize("kind,coeffs,lo,hi", [

@@ -14,11 +14,13 @@ from ..effects import EFFECTS, Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .elimination import without_first
 from .fitting import bootstrap_intervals, continue_fit, fit_candidate, scan_candidate
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
-from .results import Candidate, Diagnosis, _num
-from .screening import ee_screen, other_places, screen, select_for_fit
+from .results import Candidate, Diagnosis
+from .scoring import judge as _judge, validation_gap
+from .screening import ee_screen, other_kinds, other_places, screen, select_for_fit
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
@@ -26,15 +28,6 @@ from .verdict import decide
 from .where import _explain, where_analysis
 
 Fraction = Callable[[float], None]
-
-
-def _gap(structure: Structure, theta: np.ndarray, val: Sequence[Recording],
-         proc: Processing) -> tuple[float, np.ndarray]:
-    outs = _Outputs(structure, val, proc, theta)
-    r = outs.residuals(theta)[0]
-    if not np.all(np.isfinite(r)):
-        return math.inf, np.full((len(val), structure.n_dof), np.inf)
-    return float(r @ r), outs.blocks(r)
 
 
 def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
@@ -85,6 +78,13 @@ def finalists(chosen: Sequence[Candidate], settings: DiagnoseSettings) -> list[C
     if rival is not None and rival not in out:
         out.append(rival)
     return out
+
+
+def _lead(chosen: Sequence[Candidate]) -> Candidate | None:
+    """The fitted candidate with the best validation closure, when it is structural."""
+    best = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
+               key=lambda c: c.closure, default=None)
+    return best if best is not None and best.category == "structure" else None
 
 
 def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
@@ -143,18 +143,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             _say(progress, f"{c.label()}: second round failed ({exc})")
 
     def judge(c: Candidate) -> None:
-        c.gap_before = gap_before
-        c.gap_after, after_blocks = _gap(c.structure, c.theta, c.correct(val), proc)
-        c.closure = 1.0 - c.gap_after / gap_before if gap_before > 0 else 0.0
-        c.per_record = []
-        for j, rec in enumerate(val):
-            gb, ga = float(before_blocks[j].mean()), float(after_blocks[j].mean())
-            c.per_record.append({"record": rec.name, "gap_before": gb,
-                                 "gap_after": _num(ga),
-                                 "closure": _num(1 - ga / gb) if gb > 0 else None})
-        _say(progress, f"{c.label()}: closure {c.closure:.3f} (val gap {gap_before:.4g} -> "
-                       f"{c.gap_after:.4g}; train {c.train_cost:.4g}; {c.fit_time_s:.1f} s) "
-                       + ", ".join(f"{k}={v:.4g}" for k, v in c.coefficients.items()))
+        _judge(c, val, proc, gap_before, before_blocks, progress)
 
     for k, c in enumerate(chosen):
         fit_first(c)
@@ -164,24 +153,35 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     fraction(0.9)
     for c in (c for c in chosen if c.fitted):
         judge(c)
-    # the leading structural kind at every other place too: the place is decided by fits
-    lead = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
-               key=lambda c: c.closure, default=None)
-    if settings.place_check and lead is not None and lead.category == "structure" \
-            and lead.closure >= settings.step_min:
+    def fit_extra(c: Candidate, lead: Candidate) -> None:
+        try:
+            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
+                           nom.force_scale, nom.jacobian, nom.basis)
+        except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
+            c.note = f"scan failed: {exc}"
+        chosen.append(c)
+        if not fit_first(c):
+            return
+        if c.train_cost <= settings.finalist_ratio * lead.train_cost:
+            fit_more(c)
+        judge(c)
+
+    # the place and the law of the leading structural effect are decided by fits: its
+    # look-alike kinds at its place (when it leaves part of the gap), then its kind at
+    # every other place, then look-alikes again if the place moved
+    lead = _lead(chosen)
+    if settings.place_check and lead is not None and lead.closure >= settings.step_min:
+        if lead.closure < settings.kind_check:
+            for c in other_kinds(cands, lead, chosen):
+                fit_extra(c, lead)
+            lead = _lead(chosen) or lead
+        place = lead.loc.between
         for c in other_places(cands, lead.effect.kind, chosen):
-            try:
-                scan_candidate(c, structure, theta, train, proc,
-                               nom.amplitudes[c.loc.between], nom.force_scale,
-                               nom.jacobian, nom.basis)
-            except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
-                c.note = f"scan failed: {exc}"
-            chosen.append(c)
-            if not fit_first(c):
-                continue
-            if c.train_cost <= settings.finalist_ratio * lead.train_cost:
-                fit_more(c)
-            judge(c)
+            fit_extra(c, lead)
+        lead = _lead(chosen) or lead
+        if lead.loc.between != place and lead.closure < settings.kind_check:
+            for c in other_kinds(cands, lead, chosen):
+                fit_extra(c, lead)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
     stage_cands = cands + sens
@@ -268,7 +268,20 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         cur_train, cur_val = v.correct(cur_train), v.correct(cur_val)
         cur_struct = v.structure
         cur_fit = NominalFit(v.theta, v.train_cost, f"with {v.label()}")
-        cur_gap, cur_blocks = _gap(cur_struct, v.theta, cur_val, proc)
+        cur_gap, cur_blocks = validation_gap(cur_struct, v.theta, cur_val, proc)
+    if settings.backward:
+        alone = without_first(verdicts, structure, train, val, proc, gap_before,
+                              before_blocks, settings, progress)
+        if alone is not None:
+            try:
+                bootstrap_intervals(alone, train, proc)
+            except Exception as exc:  # noqa: BLE001 - the Gauss-Newton intervals stand
+                _say(progress, f"{alone.label()}: bootstrap interval failed ({exc})")
+            verdicts = [alone]
+            ranking = sorted([alone, *ranking], key=lambda c: -c.closure
+                             if np.isfinite(c.closure) else math.inf)
+            stages.append({"gap_before": gap_before, "backward": alone.note,
+                           "verdict": alone.label()})
     _refresh(verdicts)
     report(0.97)
 

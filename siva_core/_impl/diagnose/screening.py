@@ -311,6 +311,36 @@ def other_places(cands: Sequence[Candidate], kind: str, fitted: Sequence[Candida
                                                     c.ee_score))
 
 
+#: kinds that act through the relative velocity and dissipate (the rest restore)
+DISSIPATIVE_KINDS = frozenset({"damper", "quadratic_damper", "cubic_damper", "coulomb"})
+
+
+def other_kinds(cands: Sequence[Candidate], lead: Candidate, fitted: Sequence[Candidate]
+                ) -> list[Candidate]:
+    """The best-scoring candidate of every other kind *at the lead's place* that acts
+    alike (restoring or dissipating, like the lead), not fitted yet, strongest first:
+    look-alike laws at one place are told apart by fits, not by the screen (measured: a
+    clearance m2-ground on a 3-DOF chain, gap 1.17, screened behind clearances elsewhere;
+    a cubic spring m2-ground led with closure 0.76 and the clearance was never fitted)."""
+    role = lead.effect.kind in DISSIPATIVE_KINDS
+    done = {c.effect.kind for c in fitted if c.loc.between == lead.loc.between}
+    best: dict[str, Candidate] = {}
+    for c in scan_targets(cands):
+        if c.loc.between != lead.loc.between or c.effect.kind in done \
+                or (c.effect.kind in DISSIPATIVE_KINDS) != role:
+            continue
+        b = best.get(c.effect.kind)
+        if b is None or _strength(c) > _strength(b):
+            best[c.effect.kind] = c
+    return sorted(best.values(), key=lambda c: -_strength(c))
+
+
+def _strength(c: Candidate) -> float:
+    """A candidate's screening evidence: the better of its output-error score (when its
+    sign is admissible) and its equation-error score."""
+    return max(c.score if c.admissible else 0.0, c.ee_score)
+
+
 def scan_targets(cands: Sequence[Candidate]) -> list[Candidate]:
     """Every candidate the coarse magnitude scan visits: all but those the model already
     represents or whose sensitivity run diverged (an inadmissible screening sign does not

@@ -80,6 +80,44 @@ def _value_grid(fault_is_gain: bool, v0: float, fs: float) -> list[float]:
     return [v0 + k / fs for k in (-3, -2, -1, 0, 1, 2, 3)]
 
 
+def _ls_start(structure: Structure, records: Sequence[Recording],
+              proc: Processing) -> list[np.ndarray]:
+    """The equation-error least-squares fit on the corrected records, as a second start
+    (dampers made dissipative; none when implausible)."""
+    from ..baselines import least_squares
+    from .nominal import _dissipative, _plausible
+
+    try:
+        th = structure.vector(least_squares(structure, [proc.apply(r, structure.dofs)
+                                                        for r in records]))
+    except Exception:  # noqa: BLE001 - an optional start
+        return []
+    th = _dissipative(structure, th) if _dissipative(structure, th) is not None else th
+    return [th] if _plausible(structure, th, min(r.fs for r in records)) else []
+
+
+def _refit(structure: Structure, starts: Sequence[np.ndarray], records: Sequence[Recording],
+           proc: Processing, nfev: int) -> np.ndarray:
+    """The nominal model re-fitted on corrected records from every start; the lowest train
+    cost wins.  Each start is refined, not just costed: the nominal fit on the faulty
+    records may sit in a basin the corrected records no longer have (measured: a 2-sample
+    delay on a 3-DOF chain: from the nominal fit, train cost 0.0081 and a damper at its
+    bound; from least squares on the corrected records, which *costs* more at the start
+    (0.12), 8e-5 and the truth within 0.2 %)."""
+    from ..refine import output_error, refine
+
+    best, best_cost = np.asarray(starts[0], float), float("inf")
+    for th in starts:
+        try:
+            res = refine(structure, th, records, proc, max_nfev=nfev, uncertainty=FAST)
+            c = float(output_error(structure, res.theta[None], records, proc)[0])
+        except Exception:  # noqa: BLE001 - a start that fails is skipped
+            continue
+        if np.isfinite(c) and c < best_cost:
+            best, best_cost = res.theta, c
+    return best
+
+
 def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                train: Sequence[Recording], proc: Processing,
                settings: DiagnoseSettings) -> None:
@@ -112,8 +150,9 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
         theta = refine(structure, res0.theta, corrected(train, fault, ch, v0), proc,
                        max_nfev=max(10, settings.fit_nfev // 4), uncertainty=FAST).theta
     else:
-        theta = refine(structure, theta_nom, corrected(train, fault, ch, v0), proc,
-                       max_nfev=max(10, settings.fit_nfev // 2), uncertainty=FAST).theta
+        recs = corrected(train, fault, ch, v0)
+        theta = _refit(structure, [theta_nom, *_ls_start(structure, recs, proc)], recs, proc,
+                       max(10, settings.fit_nfev // 2))
 
     def cost(th: np.ndarray, v: float) -> float:
         try:

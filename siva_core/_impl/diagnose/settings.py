@@ -46,6 +46,12 @@ class DiagnoseSettings:
         value lowers the nominal train cost by at least this share.
     place_check: once a structural kind leads after the fits, fit it at every other place
         too (the place is decided by fits, not by the screen; False trades that for time).
+    kind_check: when the leading structural effect closes less than this share of the gap,
+        its look-alike kinds (restoring or dissipating, like it) are fitted at its place
+        too (a law that leaves part of the gap may be a look-alike of the true one).
+    backward: with two structural effects named in turn, re-fit the second alone and drop
+        the first when it adds less than ``step_min`` of what is left (a greedy search
+        can name a look-alike first that the true effect then makes redundant).
     max_effects: most effects named at once (added greedily while each one is significant
         on the validation records).
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
@@ -72,6 +78,8 @@ class DiagnoseSettings:
     step_min: float = 0.25
     sensor_gain: float = 0.2
     place_check: bool = True
+    kind_check: float = 0.95
+    backward: bool = True
     max_effects: int = 2
     sensors: bool = True
     effects: Sequence[str] | None = None
