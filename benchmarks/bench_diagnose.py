@@ -33,7 +33,9 @@ grows with the other jobs' load; the CPU time is close to an idle machine's wall
 share right (kind and place), false verdicts on nulls and the time per case.
 
 Usage: ``python benchmarks/bench_diagnose.py [--cases a,b] [--matrix full|reduced]
-[--structures lono,chain3] [--rotate N] [--json FILE] [--verbose]``
+[--structures lono,chain3] [--rotate N] [--json FILE] [--verbose]``; ``--json`` is
+rewritten after every case, and ``--summarise a.json,b.json`` prints the matrix of saved
+runs (the full matrix split over processes with ``--cases``).
 (``SIVA_SHARED_DATA`` points at the shared data when it is not at ../shared/data)
 """
 from __future__ import annotations
@@ -249,7 +251,16 @@ def main() -> int:
                     help="--matrix reduced: shift places, sizes and sensor channels by this")
     ap.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     ap.add_argument("--verbose", action="store_true", help="progress of each diagnosis")
+    ap.add_argument("--summarise", metavar="FILES",
+                    help="no runs: the matrix and summary of rows saved by --json (comma-"
+                         "separated files, e.g. of runs split over several processes)")
     args = ap.parse_args()
+    if args.summarise:
+        rows = [r for f in args.summarise.split(",") for r in json.loads(Path(f).read_text())]
+        print(f"{len(rows)} cases from {args.summarise}")
+        print_confusion(rows)
+        print_summary(rows)
+        return 0
     rows = []
     head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
             f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s} {'cpu_s':>7s}")
@@ -276,12 +287,12 @@ def main() -> int:
               f"{row['time_s']:7.1f} {row.get('cpu_s', 0.0):7.1f}", flush=True)
         if args.verbose:
             print(f"    coefficients {row['coefficients']}; rule: {row['reason']}")
+        if args.json:  # after every case: a run stopped at a deadline keeps what it did
+            Path(args.json).write_text(json.dumps(rows, indent=2, default=float) + "\n")
     n_ok = sum(r["correct"] for r in rows)
     print(f"{n_ok}/{len(rows)} verdicts as expected; total {sum(r['time_s'] for r in rows):.0f} s")
     print_confusion(rows)
     print_summary(rows)
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2, default=float) + "\n")
     return 0 if n_ok == len(rows) else 1
 
 

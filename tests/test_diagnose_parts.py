@@ -188,3 +188,21 @@ def test_matrix_sizes_come_from_the_structure():
         assert matrix.coefficients(rig, "cubic_spring", matrix.places(st)[0], "small")["k3"] < 0
     assert "lono:damper:LO-ground:small" not in matrix.case_names("full", ["lono"])
     assert len(matrix.case_names("reduced", ["lono"])) < len(matrix.case_names("full", ["lono"]))
+
+
+def test_a_record_at_the_noise_level_may_wobble_without_refusing_the_verdict():
+    """Consistency is judged against the records' gap scale: a record at the noise level
+    that gets 10 % worse (by 2e-5) does not refuse a candidate that closes the others;
+    a record that gets worse by a share of the mean record gap does."""
+    from siva_core._impl.diagnose.verdict import _consistent
+
+    c = Candidate(EFFECTS["cubic_damper"], Location(0, -1, ("LO", "ground")), {})
+    c.per_record = [{"record": "small", "gap_before": 2.0e-4, "gap_after": 2.2e-4,
+                     "closure": -0.1},
+                    {"record": "large", "gap_before": 3.0e-2, "gap_after": 1.0e-3,
+                     "closure": 0.967}]
+    assert _consistent(c, 0.05)
+    c.per_record[0].update(gap_after=2.0e-3, closure=-9.0)   # worse by 2e-3 > 5 % of 0.015
+    assert not _consistent(c, 0.05)
+    c.per_record[0].update(gap_after=None, closure=None)     # diverged
+    assert not _consistent(c, 0.05)

@@ -153,6 +153,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     fraction(0.9)
     for c in (c for c in chosen if c.fitted):
         judge(c)
+
     def fit_extra(c: Candidate, lead: Candidate) -> None:
         try:
             scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],

@@ -26,7 +26,8 @@ class DiagnoseSettings:
     closure_min: least validation closure for a verdict (share of the gap removed).
     separation: the verdict's gap_after must be at most this fraction of the best
         other-kind candidate's gap_after.
-    record_tolerance: no validation record may get worse by more than this fraction.
+    record_tolerance: no validation record may get worse by more than this fraction of
+        its own gap and of the mean record gap (records at the noise level may wobble).
     noise_factor: the nominal validation gap must exceed this multiple of the estimated
         noise floor, else the nominal model already fits to the noise level (null).
     gap_min: ... and it must exceed this normalised output error (0.005 = 7 % RMS error):
