@@ -206,3 +206,30 @@ def test_a_record_at_the_noise_level_may_wobble_without_refusing_the_verdict():
     assert not _consistent(c, 0.05)
     c.per_record[0].update(gap_after=None, closure=None)     # diverged
     assert not _consistent(c, 0.05)
+
+
+def test_a_clearance_without_a_gap_is_the_same_law_as_a_spring():
+    """Two fitted elements at one place whose forces agree over the measured motions are
+    one law: the verdict names the simpler (the spring), and the look-alike is no rival;
+    a real clearance (gap 40 % of the largest displacement) is not a spring."""
+    from siva_core._impl.diagnose.verdict import decide, same_law
+    from siva_core._impl.effects import Amplitudes
+
+    amp = Amplitudes(d_max=0.01, v_max=0.6, d_rms=0.003, v_rms=0.2)
+    place = Location(1, -1, ("NO", "ground"))
+
+    def fitted(kind: str, coefficients: dict, gap_after: float) -> Candidate:
+        c = Candidate(EFFECTS[kind], place, {}, fitted=True, amplitudes=amp,
+                      coefficients=coefficients, gap_before=0.34, gap_after=gap_after,
+                      closure=1 - gap_after / 0.34)
+        c.per_record = [{"record": "r", "gap_before": 0.34, "gap_after": gap_after,
+                         "closure": c.closure}]
+        return c
+
+    clearance = fitted("clearance", {"k": 210.5, "gap": 2.2e-5}, 2.9e-4)
+    spring = fitted("spring", {"k": 210.1}, 3.0e-4)
+    cubic = fitted("cubic_spring", {"k3": 6.5e5}, 0.31)
+    assert same_law(clearance, spring) and not same_law(cubic, spring)
+    assert not same_law(fitted("clearance", {"k": 210.0, "gap": 0.004}, 0.1), spring)
+    verdict, rule = decide([clearance, spring, cubic], 0.34, 2e-4, DiagnoseSettings())
+    assert verdict is spring and rule["rival"] == cubic.label() and "same_law" in rule

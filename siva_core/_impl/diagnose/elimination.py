@@ -46,7 +46,7 @@ def without_first(verdicts: Sequence[Candidate], structure: Structure,
                  horizons=None, uncertainty=FAST)
     alone = Candidate(second.effect, second.loc, dict(second.shape), structure=aug,
                       names=names, theta=res.theta, fitted=True, score=second.score,
-                      ee_score=second.ee_score)
+                      ee_score=second.ee_score, amplitudes=second.amplitudes)
     vals = aug.as_dict(res.theta)
     alone.coefficients = {k: vals[p] for k, p in names.items()}
     alone.parameters = {p: vals[p] for p in structure.free}

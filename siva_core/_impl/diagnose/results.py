@@ -7,7 +7,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..effects import Effect
+from ..effects import Amplitudes, Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
@@ -53,6 +53,7 @@ class Candidate:
     scan_theta: np.ndarray | None = None   # best scan point + its Gauss-Newton re-tune
     scan_raw: np.ndarray | None = None     # the best scan point itself
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %
+    amplitudes: Amplitudes | None = None   # what an element here sees (nominal, train)
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:
