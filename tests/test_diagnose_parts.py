@@ -233,3 +233,25 @@ def test_a_clearance_without_a_gap_is_the_same_law_as_a_spring():
     assert not same_law(fitted("clearance", {"k": 210.0, "gap": 0.004}, 0.1), spring)
     verdict, rule = decide([clearance, spring, cubic], 0.34, 2e-4, DiagnoseSettings())
     assert verdict is spring and rule["rival"] == cubic.label() and "same_law" in rule
+
+
+def test_a_faint_gap_is_named_only_when_one_law_closes_most_of_it():
+    """Below gap_min, above twice the noise floor: a candidate closing 96 % of the gap is
+    named (a faint effect), one closing 46 % is not (the residue any flexible element
+    partly explains)."""
+    from siva_core._impl.diagnose.verdict import decide
+
+    def fitted(closure: float) -> Candidate:
+        c = Candidate(EFFECTS["cubic_spring"], Location(0, -1, ("LO", "ground")), {},
+                      fitted=True, gap_before=0.0045, gap_after=0.0045 * (1 - closure),
+                      closure=closure)
+        c.per_record = [{"record": "r", "gap_before": 0.0045,
+                         "gap_after": c.gap_after, "closure": closure}]
+        return c
+
+    named, _ = decide([fitted(0.96)], 0.0045, 2e-4, DiagnoseSettings())
+    assert named is not None
+    none, rule = decide([fitted(0.46)], 0.0045, 2e-4, DiagnoseSettings())
+    assert none is None and not rule["checks"]["above_noise"]
+    at_noise, _ = decide([fitted(0.96)], 0.0045, 3e-3, DiagnoseSettings())
+    assert at_noise is None

@@ -69,7 +69,8 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                             "separation": settings.separation,
                             "record_tolerance": settings.record_tolerance,
                             "noise_factor": settings.noise_factor,
-                            "gap_min": settings.gap_min}
+                            "gap_min": settings.gap_min,
+                            "faint_closure": settings.faint_closure}
     fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure)]
     if not fitted:
         rule["reason"] = "no candidate could be fitted"
@@ -85,7 +86,9 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
     rival = next((c for c in fitted if c is not top and c.effect.kind != top.effect.kind
                   and not same_law(top, c)), None)
     checks = {
-        "above_noise": bool(gap_before > settings.gap_min and (
+        # a gap below gap_min counts only when the candidate closes most of it (faint)
+        "above_noise": bool((gap_before > settings.gap_min
+                             or top.closure >= settings.faint_closure) and (
             noise_floor is None or gap_before > settings.noise_factor * noise_floor)),
         "closure": bool(top.closure >= settings.closure_min),
         "separation": bool(rival is None or not np.isfinite(rival.gap_after)
@@ -99,7 +102,8 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
     reasons = {"above_noise": "the nominal model already fits the validation records to "
-                              f"the noise level or within {settings.gap_min:g} NMSE",
+                              f"the noise level, or within {settings.gap_min:g} NMSE and no "
+                              f"candidate closes {settings.faint_closure:.0%} of that",
                "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
                           "of the validation gap",
                "separation": "a candidate of another kind explains the gap about as well",
