@@ -11,7 +11,7 @@ from ..effects import Amplitudes, Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .nominal import NominalFit
+from .nominal import DISSIPATIVE, NominalFit
 from .outputs import (Progress, _gain_values, _locations, _Outputs, _relative, _say,
                       candidate_sites)
 from .results import Candidate, Location
@@ -303,16 +303,10 @@ def other_places(cands: Sequence[Candidate], kind: str, fitted: Sequence[Candida
     for c in scan_targets(cands):
         if c.effect.kind != kind or c.loc.between in done:
             continue
-        s = max(c.score if c.admissible else 0.0, c.ee_score)
         b = best.get(c.loc.between)
-        if b is None or s > max(b.score if b.admissible else 0.0, b.ee_score):
+        if b is None or _strength(c) > _strength(b):
             best[c.loc.between] = c
-    return sorted(best.values(), key=lambda c: -max(c.score if c.admissible else 0.0,
-                                                    c.ee_score))
-
-
-#: kinds that act through the relative velocity and dissipate (the rest restore)
-DISSIPATIVE_KINDS = frozenset({"damper", "quadratic_damper", "cubic_damper", "coulomb"})
+    return sorted(best.values(), key=lambda c: -_strength(c))
 
 
 def other_kinds(cands: Sequence[Candidate], lead: Candidate, fitted: Sequence[Candidate]
@@ -322,12 +316,12 @@ def other_kinds(cands: Sequence[Candidate], lead: Candidate, fitted: Sequence[Ca
     look-alike laws at one place are told apart by fits, not by the screen (measured: a
     clearance m2-ground on a 3-DOF chain, gap 1.17, screened behind clearances elsewhere;
     a cubic spring m2-ground led with closure 0.76 and the clearance was never fitted)."""
-    role = lead.effect.kind in DISSIPATIVE_KINDS
+    role = lead.effect.kind in DISSIPATIVE
     done = {c.effect.kind for c in fitted if c.loc.between == lead.loc.between}
     best: dict[str, Candidate] = {}
     for c in scan_targets(cands):
         if c.loc.between != lead.loc.between or c.effect.kind in done \
-                or (c.effect.kind in DISSIPATIVE_KINDS) != role:
+                or (c.effect.kind in DISSIPATIVE) != role:
             continue
         b = best.get(c.effect.kind)
         if b is None or _strength(c) > _strength(b):

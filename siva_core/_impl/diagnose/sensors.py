@@ -92,7 +92,8 @@ def _ls_start(structure: Structure, records: Sequence[Recording],
                                                         for r in records]))
     except Exception:  # noqa: BLE001 - an optional start
         return []
-    th = _dissipative(structure, th) if _dissipative(structure, th) is not None else th
+    fixed = _dissipative(structure, th)
+    th = th if fixed is None else fixed
     return [th] if _plausible(structure, th, min(r.fs for r in records)) else []
 
 
@@ -101,8 +102,8 @@ def _refit(structure: Structure, starts: Sequence[np.ndarray], records: Sequence
     """The nominal model re-fitted on corrected records from every start; the lowest train
     cost wins.  Each start is refined, not just costed: the nominal fit on the faulty
     records may sit in a basin the corrected records no longer have (measured: a 2-sample
-    delay on a 3-DOF chain: from the nominal fit, train cost 0.0081 and a damper at its
-    bound; from least squares on the corrected records, which *costs* more at the start
+    delay on a 3-DOF chain: from the nominal fit, train cost 0.0081 with a damper near
+    zero; from least squares on the corrected records, which *costs* more at the start
     (0.12), 8e-5 and the truth within 0.2 %)."""
     from ..refine import output_error, refine
 
