@@ -304,8 +304,11 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule = {**rule, **rule0}
     combined = _combined_closure(verdicts, gap_before)
     rule["combined_closure"] = combined
+    # a set built on a tentative first effect (refused alone) needs more evidence
+    set_min = settings.tentative_closure if any("tentative" in s for s in stages) \
+        else settings.closure_min
     if len(verdicts) > 1 and (rule0.get("checks") or {}).get("above_noise", False) \
-            and combined >= settings.closure_min:
+            and combined >= set_min:
         verdict = verdicts[0]
         rule["reason"] = (f"{len(verdicts)} effects, each significant on the validation "
                           f"records, together close {combined:.3f} of the gap")
@@ -313,7 +316,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         verdicts = []
     elif verdicts and verdicts[0] is not verdict:
         verdicts = [verdict]
-    elif len(verdicts) > 1 and combined < settings.closure_min:
+    elif len(verdicts) > 1 and combined < set_min:
         verdicts = verdicts[:1]
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
