@@ -156,7 +156,8 @@ def test_verdict_when_every_check_passes():
 
 
 def test_no_verdict_at_the_noise_level_or_below_the_relevance_floor():
-    ranking = [_cand("coulomb", ("NO", "ground"), 0.9, gap_before=0.004)]
+    # below gap_min a candidate must close faint_closure (0.8) of the gap to be named
+    ranking = [_cand("coulomb", ("NO", "ground"), 0.7, gap_before=0.004)]
     verdict, rule = decide(ranking, 0.004, 1e-4, DiagnoseSettings())
     assert verdict is None and not rule["checks"]["above_noise"]
     ranking = [_cand("coulomb", ("NO", "ground"), 0.9, gap_before=0.05)]

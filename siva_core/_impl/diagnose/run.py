@@ -25,7 +25,7 @@ from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
-from .where import _explain, where_analysis
+from .where import _explain, spectral_noise_floor, where_analysis
 
 Fraction = Callable[[float], None]
 
@@ -95,7 +95,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
            val: Sequence[Recording], proc: Processing, effects: Sequence[Effect],
            settings: DiagnoseSettings, gap_before: float, before_blocks: np.ndarray,
            sensors: bool, progress: Progress | None, fraction: Callable[[float], None],
-           timing: dict[str, float], tag: str) -> list[Candidate]:
+           timing: dict[str, float], tag: str, noise: float | None = None
+           ) -> list[Candidate]:
     """One round: screen, scan every candidate's magnitude, fit the chosen ones, score
     them on the validation records.  Returns the fitted candidates, best closure first."""
     theta = fit.theta
@@ -158,6 +159,10 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     for c in (c for c in chosen if c.fitted):
         judge(c)
 
+    def unsure(c: Candidate) -> bool:  # leaves part of the gap, or more than the noise
+        return c.closure < settings.kind_check or (
+            noise is not None and c.gap_after > settings.kind_check_noise * noise)
+
     def fit_extra(c: Candidate, lead: Candidate) -> None:
         try:
             scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
@@ -176,7 +181,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     # every other place, then look-alikes again if the place moved
     lead = _lead(chosen)
     if settings.place_check and lead is not None and lead.closure >= settings.step_min:
-        if lead.closure < settings.kind_check:
+        if unsure(lead):
             for c in other_kinds(cands, lead, chosen):
                 fit_extra(c, lead)
             lead = _lead(chosen) or lead
@@ -184,7 +189,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         for c in other_places(cands, lead.effect.kind, chosen):
             fit_extra(c, lead)
         lead = _lead(chosen) or lead
-        if lead.loc.between != place and lead.closure < settings.kind_check:
+        if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):
                 fit_extra(c, lead)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
@@ -217,6 +222,10 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     res_before = val_prob.residuals(theta)[0]
     gap_before = float(res_before @ res_before)
     before_blocks = val_prob.blocks(res_before)
+    try:  # the level a right model leaves: decides when look-alikes are fitted too
+        noise = spectral_noise_floor(structure, val, proc, theta)
+    except Exception:  # noqa: BLE001 - the closure criterion alone then
+        noise = None
     _say(progress, f"nominal: train cost {train_cost:.4g}, validation gap {gap_before:.4g} "
                    f"({timing['nominal_fit']:.1f} s)")
 
@@ -241,7 +250,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc, effects, settings,
                         cur_gap, cur_blocks, settings.sensors and not any(
                             v.category == "sensor" for v in verdicts),
-                        progress, lambda x: report(lo + (hi - lo) * x), timing, tag)
+                        progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
+                        noise)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
         v, r = decide(rk, cur_gap, floor, settings)

@@ -53,7 +53,10 @@ class DiagnoseSettings:
         too (the place is decided by fits, not by the screen; False trades that for time).
     kind_check: when the leading structural effect closes less than this share of the gap,
         its look-alike kinds (restoring or dissipating, like it) are fitted at its place
-        too (a law that leaves part of the gap may be a look-alike of the true one).
+        too (a law that leaves part of the gap may be a look-alike of the true one) ...
+    kind_check_noise: ... or when it leaves more than this multiple of the spectral noise
+        floor of the validation records (measured: a cubic damper NO-ground closing 0.989
+        of the gap of a velocity-squared damper left 0.0018, 9 x the noise).
     backward: with two structural effects named in turn, re-fit the second alone and drop
         the first when it adds less than ``step_min`` of what is left (a greedy search
         can name a look-alike first that the true effect then makes redundant).
@@ -89,6 +92,7 @@ class DiagnoseSettings:
     sensor_gain: float = 0.2
     place_check: bool = True
     kind_check: float = 0.95
+    kind_check_noise: float = 3.0
     backward: bool = True
     tentative_closure: float = 0.8
     max_effects: int = 2

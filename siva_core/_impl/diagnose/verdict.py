@@ -54,10 +54,12 @@ def _consistent(top: Candidate, tolerance: float) -> bool:
     gaps = [p["gap_before"] for p in top.per_record if p.get("gap_before") is not None]
     scale = tolerance * float(np.mean(gaps)) if gaps else 0.0
     for p in top.per_record:
-        if p["closure"] is None or p.get("gap_after") is None:
+        if p["closure"] is None:  # diverged
             return False
-        worse = p["gap_after"] - p["gap_before"]
-        if p["closure"] < -tolerance and worse > scale:
+        if p["closure"] >= -tolerance:
+            continue
+        ga, gb = p.get("gap_after"), p.get("gap_before")
+        if ga is None or gb is None or ga - gb > scale:
             return False
     return True
 

@@ -45,6 +45,20 @@ def _bands(freqs: Sequence[float], nyq: float) -> list[tuple[str, float, float]]
     return out
 
 
+def spectral_noise_floor(structure: Structure, records: Sequence[Recording],
+                         proc: Processing, theta: np.ndarray) -> float | None:
+    """Mean white-noise floor of the processed records as an NMSE (``_noise_nmse``): the
+    level a model that is right leaves on them."""
+    outs = _Outputs(structure, records, proc, theta)
+    vals = []
+    for r in outs.records:
+        y = r.target / r.rms
+        t = _kept_time(proc, r.rec, structure.dofs, len(y))
+        fs = 1.0 / (t[1] - t[0]) if len(t) > 1 else 1.0
+        vals.append(_noise_nmse(y, fs, _passband(proc, fs)))
+    return float(np.mean(vals)) if vals else None
+
+
 def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequence[Recording],
                    roles: Sequence[str], proc: Processing,
                    best: Candidate | None) -> tuple[dict[str, Any], dict[str, Any]]:
