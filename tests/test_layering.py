@@ -26,7 +26,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_identify_holdout.py": {"siva_core._impl.commands": "the hold-out rule"},
     "tests/test_diagnose.py": {"siva_core._impl.diagnose": "the diagnosis' steps",
                                "siva_core._impl.effects": "effect amplitudes"},
-    "tests/test_diagnose_parts.py": {"siva_core._impl.diagnose": "the diagnosis' parts"},
+    "tests/test_diagnose_parts.py": {"siva_core._impl.diagnose": "the diagnosis' parts",
+                                     "siva_core._impl.effects": "effect amplitudes"},
+    "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
 }
 
 
