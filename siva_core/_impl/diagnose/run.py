@@ -306,7 +306,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                                   ["train"] * len(train) + ["val"] * len(val), proc, best)
     # noise floor: the spectral estimate, capped by the best fit achieved on the train
     # records (a residual that small is reachable, so the noise cannot be larger)
-    psd_floor = where.pop("noise_floor")
+    psd_floor = noise  # the spectral estimate, computed before the stages
     fits = [train_cost] + [c.train_cost for c in ranking if np.isfinite(c.train_cost)]
     where["noise_floor"] = float(min([psd_floor, *fits] if psd_floor is not None else fits))
     where["noise_floor_spectral"] = psd_floor

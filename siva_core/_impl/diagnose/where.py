@@ -77,7 +77,6 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
     win_err = np.zeros(3)
     win_sig = np.zeros(3)
     band_acc: dict[str, list[float]] = {}
-    noise_nmse = []
     for k, (r, role) in enumerate(zip(outs.records, roles)):
         st, _ = outs.signals(theta_nom, k)
         y = r.target / r.rms  # per-DOF normalised measurement
@@ -92,7 +91,6 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
                                 for d, q in enumerate(ra.quantities)], -1) / ra.rms
         t = _kept_time(proc, r.rec, structure.dofs, len(y))
         fs = 1.0 / (t[1] - t[0]) if len(t) > 1 else 1.0
-        noise_nmse.append(_noise_nmse(y, fs, _passband(proc, fs)))
         peak_force = float(np.max(np.abs(r.force))) if r.force is not None else 0.0
         entry: dict[str, Any] = {"record": r.rec.name, "role": role,
                                  "peak_force": peak_force,
@@ -134,14 +132,12 @@ def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequenc
              for name, v in band_acc.items()}
     trend = _amplitude_trend(val_entries if len(val_entries) >= 2 else
                              [e for e in per_record if e.get("gap") is not None])
-    val_noise = [n for n, (_, role) in zip(noise_nmse, zip(records, roles)) if role == "val"]
     where = {
         "per_dof": per_dof,
         "per_record": per_record,
         "amplitude_trend": trend,
         "decay": windows,
         "frequency_bands": bands,
-        "noise_floor": float(np.mean(val_noise)) if val_noise else None,
         "modes_hz": [float(x) for x in modes],
     }
     where["explanation"] = _explain(where, best)
