@@ -151,10 +151,11 @@ class OutputErrorProblem:
         return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
-                         force_scale: np.ndarray | None = None) -> list[States | None]:
+                         force_scale: np.ndarray | None = None, need: str = "qva"
+                         ) -> list[States | None]:
         """Record ``k`` simulated for each set and passed through the chain, one States per
-        set (None if the simulation diverged)."""
-        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale)
+        set (None if the simulation diverged; quantities not in ``need`` are NaN)."""
+        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale, need=need)
         out: list[States | None] = []
         for b in range(len(ok)):
             if not ok[b]:
@@ -176,17 +177,20 @@ class OutputErrorProblem:
         """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
         ``record`` replaces the stored one (e.g. the same record with another force)."""
         r = record or self.records[k]
-        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r)
+        need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
+        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
         return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
 
     def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                   record: _Record | None = None) -> tuple[States, np.ndarray]:
+                   record: _Record | None = None, need: str = "qva"
+                   ) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
-        on (B, T, n) arrays (``Processing.apply_simulated``).  Returns (States with
-        (B, T', n) arrays, (B,) mask of sets whose simulation stayed finite)."""
+        on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
+        quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
+        sets whose simulation stayed finite)."""
         r = record or self.records[k]
         q0 = r.q0 if dq0 is None else r.q0 + dq0
         v0 = r.v0 if dv0 is None else r.v0 + dv0
@@ -198,7 +202,7 @@ class OutputErrorProblem:
               & np.all(np.isfinite(a), axis=(1, 2)))
         if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
             q, v, a = (np.where(ok[:, None, None], x, 0.0) for x in (q, v, a))
-        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a)
+        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a, need)
         return st, ok
 
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
@@ -311,7 +315,8 @@ def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[
     total = np.zeros(th.shape[0])
     for k, r in enumerate(prob.records):
         if chain:
-            sims = [None if st is None else st.q for st in prob.simulated_states(th, k)]
+            sims = [None if st is None else st.q
+                    for st in prob.simulated_states(th, k, need="q")]
         else:
             meas = prob.chain.apply(r.rec, structure.dofs)
             sim = simulate(structure, th, r.rec.time, r.q0, r.v0, r.force, substeps=r.substeps,
