@@ -8,6 +8,8 @@ so the final estimate does not inherit the chain's bias.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import sys
 import time
@@ -271,10 +273,19 @@ class Siva:
 
         # --- SIVA training (until converged, then the Approach II harvest)
         settings = self._settings()
-        trainer = SivaTrainer(st, settings)
+        # with the output-error phase to follow, this phase only has to find the basin and
+        # supply Approach III's candidates: converged at a looser tolerance, no step change,
+        # a short harvest (docs/perf.md); the output-error phase gets ``settings`` back
+        handover = settings.fit_target == "output"
+        phase1 = (dataclasses.replace(settings, conv_rel_tol=settings.handover_rel_tol,
+                                      lr_converged=None, ensemble_burn_in=0)
+                  if handover else settings)
+        trainer = SivaTrainer(st, phase1)
         trainer.set_data(self.train_states_, self.val_states_)
         t0 = time.perf_counter()
         eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
+        harvest = (min(settings.handover_epochs, settings.ensemble_epochs) if handover
+                   else settings.ensemble_epochs)
         while trainer.epoch < settings.max_epochs:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
@@ -282,14 +293,14 @@ class Siva:
                 self._say(f"{eta.text(log.epoch + 1)}  D={log.loss_d:.4f} (ln4=1.3863)  "
                           f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
                           f"{'converged ' if log.converged else ''}{rel}")
-            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+            if trainer.converged and len(trainer.ensemble) >= harvest:
                 break
         timing["training"] = time.perf_counter() - t0
         self.trainer_ = trainer
         notes: list[str] = []
         if not trainer.converged:
             notes.append(f"not converged after {trainer.epoch} epochs: Approach II uses the "
-                         f"last {settings.ensemble_epochs} epochs")
+                         f"last {harvest} epochs")
         self._say(f"training: {trainer.epoch} epochs in {timing['training']:.1f} s, "
                   f"converged at epoch {trainer.monitor.converged_at}")
 
@@ -297,7 +308,7 @@ class Siva:
         # batched simulation of the candidates) and ``best``: the output-error refinement
         # from it (shared with the service: ``recommend_best``)
         samples_ee = (trainer.ensemble.samples if len(trainer.ensemble)
-                      else np.array(trainer.history["theta"][-settings.ensemble_epochs:]))
+                      else np.array(trainer.history["theta"][-harvest:]))
         rec = recommend_best(st, samples_ee[-self.n_candidates:], train, proc, refine=self.refine)
         theta_III, best, best_std = rec.theta_III, rec.theta, rec.std
         self.refine_ = rec.refine_result
@@ -310,6 +321,7 @@ class Siva:
         # --- the output-error phase: SIVA judged on what was measured, through the chain
         if settings.fit_target == "output":
             t0 = time.perf_counter()
+            trainer.settings = settings
             self._output_error_phase(trainer, settings, best, train, val, proc, notes)
             timing["training_output_error"] = time.perf_counter() - t0
 
