@@ -560,6 +560,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 
 
+#: parametric-bootstrap replicates simulated together (each with its own force)
+_REPLICATE_CHUNK = 16
+
+
 def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
                      r: np.ndarray, series: Sequence[Series], n_rep: int = 64,
                      seed: int = 1) -> np.ndarray:
@@ -582,13 +586,21 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
             dq = None if "dq0" not in extra else extra["dq0"][:, k]
             dv = None if "dv0" not in extra else extra["dv0"][:, k]
             base, ok = prob.record_residuals(theta, k, fs, dq, dv)
+            noisy = np.repeat(rec.force[None], n_rep, axis=0)
             for b in range(n_rep):
-                noisy = rec.force.copy()
-                noisy[pulse] += sigma * rng.standard_normal((int(pulse.sum()), noisy.shape[1]))
-                alt = dataclasses.replace(rec, force=noisy, _staged=None)
-                rb, okb = prob.record_residuals(theta, k, fs, dq, dv, record=alt)
-                if ok[0] and okb[0]:
-                    E[b, col:col + size] += (rb - base)[0]
+                noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
+                                                                noisy.shape[2]))
+            # one batched simulation (a force per set) per chunk of replicates
+            rep = lambda x, c: None if x is None else np.repeat(x, c, axis=0)
+            for b0 in range(0, n_rep, _REPLICATE_CHUNK):
+                chunk = noisy[b0:b0 + _REPLICATE_CHUNK]
+                c = len(chunk)
+                alt = dataclasses.replace(rec, force=chunk, _staged=None)
+                rb, okb = prob.record_residuals(rep(np.atleast_2d(theta), c), k, rep(fs, c),
+                                                rep(dq, c), rep(dv, c), record=alt)
+                if ok[0]:
+                    good = np.flatnonzero(okb)
+                    E[b0 + good, col:col + size] += rb[good] - base[0]
         col += size
     # centred: a nonlinear response to force noise has a small mean shift (second order),
     # which is the estimator's bias estimate, not a spread to sample from

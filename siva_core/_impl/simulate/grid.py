@@ -14,6 +14,8 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
     paper); "cubic": a not-a-knot cubic spline through the samples, much closer to a smooth
     physical force sampled a dozen times per pulse (an impact hammer at 2 kHz) or to a
     band-limited excitation sampled a few times per period (Silverbox)."""
+    if F.ndim == 3:  # one force per parameter set: (B, T, n) -> (B, rows, n)
+        return np.stack([stage_force(f, m, interp) for f in F])
     T, n = F.shape
     if interp == "moments":
         # prefilter so that the piecewise-linear force has the samples' own moments
