@@ -39,8 +39,8 @@ from .bootstrap import (Series, bootstrap_covariance, perturbation_solutions,
 from .ensemble import Z95
 from .processing import Processing, States
 from .recording import Recording
-from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
-                       simulate, stage_force)
+from .simulate import (MEASURED_FORCE_INTERP, OMEGA_H, _choose_backend, auto_substeps,
+                       initial_state_and_force, simulate, stage_force)
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
 #: relative standard error below which no interval is reported (simulation accuracy)
@@ -90,7 +90,7 @@ class OutputErrorProblem:
     records: list[_Record]
     processing: Processing
     backend: str = "numpy"
-    interp: str = "linear"
+    interp: str = MEASURED_FORCE_INTERP
 
     @property
     def chain(self) -> Processing:
@@ -110,7 +110,7 @@ class OutputErrorProblem:
               processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
               theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
               backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
-              initial: str = "auto", interp: str = "linear") -> "OutputErrorProblem":
+              initial: str = "auto", interp: str = MEASURED_FORCE_INTERP) -> "OutputErrorProblem":
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
         ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
         processing = processing or Processing()
@@ -384,7 +384,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            processing: Processing | None = None, *, max_nfev: int = 50,
            quantity: str | Sequence[str] = "auto", substeps: int | str | None = "auto",
            backend: str = "auto", force_gate: str | None = "auto", initial: str = "auto",
-           interp: str = "linear", omega_h: float = OMEGA_H,
+           interp: str = MEASURED_FORCE_INTERP, omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
            fit_initial: bool | str = "auto",

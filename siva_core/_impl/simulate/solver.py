@@ -35,7 +35,7 @@ def simulate(structure: Any, theta: Any, t: Any, q0: Any, v0: Any, force: Any | 
     ``substeps`` RK4 steps per sample; ``"auto"``/``None`` chooses them (``auto_substeps``)
     so that omega*h <= ``omega_h`` for the fastest linearised *and* amplitude-dependent
     (tangent) frequency.  ``backend`` = "auto" | "numba" | "numpy".  ``interp`` = "linear"
-    (default) | "cubic": how the force is evaluated between samples (``stage_force``).
+    (default) | "moments" | "cubic": how the force is evaluated between samples (``stage_force``).
     ``force_scale`` (B,) multiplies the force of each set (a per-set calibration factor,
     used by ``refine`` to absorb an impact's impulse error).  ``staged_force``: the force
     already on the stage grid (``stage_force``) for integer ``substeps``, to skip that step
