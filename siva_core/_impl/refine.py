@@ -39,8 +39,9 @@ from .bootstrap import (Series, bootstrap_covariance, perturbation_solutions,
 from .ensemble import Z95
 from .processing import Processing, States
 from .recording import Recording
-from .simulate import (MEASURED_FORCE_INTERP, OMEGA_H, _choose_backend, auto_substeps,
-                       initial_state_and_force, simulate, stage_force)
+from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
+                       simulate, stage_force)
+from .simulate import grid as _grid
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
 #: relative standard error below which no interval is reported (simulation accuracy)
@@ -90,7 +91,7 @@ class OutputErrorProblem:
     records: list[_Record]
     processing: Processing
     backend: str = "numpy"
-    interp: str = MEASURED_FORCE_INTERP
+    interp: str = "moments"
 
     @property
     def chain(self) -> Processing:
@@ -110,11 +111,14 @@ class OutputErrorProblem:
               processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
               theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
               backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
-              initial: str = "auto", interp: str = MEASURED_FORCE_INTERP) -> "OutputErrorProblem":
+              initial: str = "auto", interp: str | None = None) -> "OutputErrorProblem":
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
-        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
+        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets).
+        ``interp``: the measured force between samples (``stage_force``; None =
+        ``simulate.grid.MEASURED_FORCE_INTERP``, read at call time)."""
         processing = processing or Processing()
         chain = processing
+        interp = interp or _grid.MEASURED_FORCE_INTERP
         recs = [records] if isinstance(records, Recording) else list(records)
         if not recs:
             raise ValueError("output error needs at least one record")
@@ -384,7 +388,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            processing: Processing | None = None, *, max_nfev: int = 50,
            quantity: str | Sequence[str] = "auto", substeps: int | str | None = "auto",
            backend: str = "auto", force_gate: str | None = "auto", initial: str = "auto",
-           interp: str = MEASURED_FORCE_INTERP, omega_h: float = OMEGA_H,
+           interp: str | None = None, omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
            fit_initial: bool | str = "auto",
