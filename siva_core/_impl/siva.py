@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -282,6 +283,10 @@ class Siva:
                   if handover else settings)
         trainer = SivaTrainer(st, phase1)
         trainer.set_data(self.train_states_, self.val_states_)
+        if handover and trainer.train is not None:
+            full = max(1, math.ceil(len(trainer.train) / settings.batch_size))
+            trainer.settings.steps_per_epoch = min(settings.steps_per_epoch or full,
+                                                   settings.handover_steps)
         t0 = time.perf_counter()
         eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
         harvest = (min(settings.handover_epochs, settings.ensemble_epochs) if handover
@@ -331,7 +336,9 @@ class Siva:
         if len(trainer.ensemble):
             samples_II = trainer.ensemble.samples
         else:
-            samples_II = np.array(trainer.history["theta"][-settings.ensemble_epochs:])
+            n_ii = (settings.oe_ensemble_epochs if settings.fit_target == "output"
+                    else settings.ensemble_epochs)
+            samples_II = np.array(trainer.history["theta"][-n_ii:])
         summ_I = normal_summary(samples_I, names, ess=False)
         summ_II = normal_summary(samples_II, names, floor_rel=NUMERICAL_REL_STD)
         timing["approach_I_II"] = time.perf_counter() - t0
@@ -407,8 +414,8 @@ class Siva:
             return
         trainer.use_output_error(lin_tr, lin_va)
         start = trainer.epoch
-        limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
-                            settings.max_epochs // 2) + settings.ensemble_epochs
+        limit = start + max(settings.oe_min_epochs + 4 * settings.oe_conv_window,
+                            settings.max_epochs // 2) + settings.oe_ensemble_epochs
         eta = Eta(limit, start=start)  # an upper bound again
         while trainer.epoch < limit:
             log = trainer.run_epoch()
@@ -416,7 +423,7 @@ class Siva:
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
                 self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
                           f"fit={log.loss_mse:.3e}  {'converged ' if log.converged else ''}{rel}")
-            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+            if trainer.converged and len(trainer.ensemble) >= settings.oe_ensemble_epochs:
                 break
         if not trainer.converged:
             notes.append("output-error phase not converged: Approach II uses its last epochs")

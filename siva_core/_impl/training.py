@@ -73,16 +73,20 @@ class SivaSettings:
     oe_lr: float = 0.05          # generator/discriminator step in the output-error phase
     oe_steps: int = 25           # steps per epoch in that phase
     oe_batch: int = 64           # parameter sets (and validation samples) per step
-    oe_min_epochs: int = 30      # epochs before its convergence is judged
+    oe_min_epochs: int = 20      # epochs before its convergence is judged
+    oe_conv_window: int = 10     # its convergence window: the generator starts at the
+    #                              anchor, already near the optimum (docs/perf.md)
     oe_noise: int = 64           # parametric-bootstrap replicates drawn from per epoch
-    oe_burn_in: int = 10         # output-error epochs skipped after its convergence (its
+    oe_burn_in: int = 5          # output-error epochs skipped after its convergence (its
     #                              step does not change at convergence, unlike phase 1's)
+    oe_ensemble_epochs: int = 100  # Approach II samples harvested in that phase (``Siva``)
     # with the output-error phase to follow (``Siva.fit``), the equation-error phase only
     # has to reach the basin and supply Approach III's candidates (the anchor; the
     # reported Approach II is the later phase's): it is judged converged at a looser
     # tolerance, keeps its step and harvests a few epochs (docs/perf.md)
     handover_epochs: int = 30
     handover_rel_tol: float = 2e-2
+    handover_steps: int = 16     # at most this many steps per epoch in that phase
 
     @classmethod
     def paper(cls, **kw: Any) -> "SivaSettings":
@@ -391,7 +395,7 @@ class SivaTrainer:
         self.opt_g = FastAdam(self.generator.parameters(), lr=s.oe_lr, foreach=True)
         self.opt_d = FastAdam(self.discriminator.parameters(), lr=s.oe_lr, foreach=True)
         self.oe = _OutputErrorPhase.of(train, val, self.epoch)
-        self.monitor = ConvergenceMonitor(window=s.conv_window, rel_tol=s.conv_rel_tol,
+        self.monitor = ConvergenceMonitor(window=s.oe_conv_window, rel_tol=s.conv_rel_tol,
                                           min_epochs=self.epoch + s.oe_min_epochs)
         self.ensemble.reset()
         self.oe_targets_: list[np.ndarray] = []
