@@ -566,6 +566,12 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
 
 #: parametric-bootstrap replicates simulated together (each with its own force)
 _REPLICATE_CHUNK = 16
+#: spread of the force's shape between samples in the parametric replicates, as a
+#: fraction of the difference between reading the samples as straight lines and with
+#: their own moments (``stage_force``); 0 switches it off.  Measured on a 3-DOF chain hit
+#: by 3-5-sample pulses (docs/perf.md): the moment-matched reading leaves 0.3-0.4 of that
+#: difference as bias, which the intervals must hold
+FORCE_SHAPE_SPREAD = 0.5
 
 
 def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
@@ -578,8 +584,12 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
     change of the simulated, processed response when the force in the pulse gets a new
     draw of the force sensor's noise (its level read off the force channel outside the
     pulse, where it measures nothing but noise).  The force noise matters because its
-    effect is not stationary: it starts a free decay that stays correlated to the end."""
+    effect is not stationary: it starts a free decay that stays correlated to the end.
+    And, for impulsive records, a random share (``FORCE_SHAPE_SPREAD``) of the change
+    between reading the sampled force as straight lines and with its own moments: what a
+    pulse of a few samples leaves unknown about the force between them."""
     rng = np.random.default_rng(seed)
+    shape_rng = np.random.default_rng([seed, 20])  # its own stream: rng's draws unchanged
     E = np.stack([phase_randomized(r, series, rng) for _ in range(n_rep)])
     col = 0
     for k, rec in enumerate(prob.records):
@@ -605,6 +615,15 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                 if ok[0]:
                     good = np.flatnonzero(okb)
                     E[b0 + good, col:col + size] += rb[good] - base[0]
+            if FORCE_SHAPE_SPREAD > 0 and ok[0] and prob.interp != "linear":
+                # the force between its samples is unknown: a replicate's force shape
+                # varies by FORCE_SHAPE_SPREAD x (straight lines - the moment-matched
+                # reading), the scale of what sampling a short pulse leaves undetermined
+                lin = dataclasses.replace(prob, interp="linear")
+                rl, okl = lin.record_residuals(theta, k, fs, dq, dv)
+                if okl[0]:
+                    xi = shape_rng.standard_normal(n_rep)
+                    E[:, col:col + size] += np.outer(xi, FORCE_SHAPE_SPREAD * (rl - base)[0])
         col += size
     # centred: a nonlinear response to force noise has a small mean shift (second order),
     # which is the estimator's bias estimate, not a spread to sample from
