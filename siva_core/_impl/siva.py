@@ -348,9 +348,9 @@ class Siva:
             # validation statistic 64 and 1723) that step finds the better one: refine again
             # from Approach II's mean and keep whichever simulates the records better
             # (skipped when Approach II's mean lies within 3 of best's standard errors and
-            # 0.5 % of it: the same basin, where a second refinement returns the same
-            # optimum; the wrong basins it exists for were several % and far more than 3
-            # standard errors away)
+            # within 0.5 % of it: the same basin, where a second refinement returns the
+            # same optimum and is not kept; a wrong basin with a validation statistic of
+            # 64+ is assumed to sit farther away -- an assumption, not re-measured)
             t0 = time.perf_counter()
             mean_II = samples_II.mean(0)
             gap = np.abs(mean_II - best)
