@@ -84,6 +84,8 @@ class FastAdam(torch.optim.Adam):
     def step(self, closure: Any = None) -> Any:  # type: ignore[override]
         if closure is not None:
             return super().step(closure)
+        while len(self._flat) < len(self.param_groups):  # groups added after construction
+            self._flat.append(self._flatten(self.param_groups[len(self._flat)]))
         fallback = False
         for group, flat in zip(self.param_groups, self._flat):
             params = group["params"]
