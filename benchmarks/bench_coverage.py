@@ -36,7 +36,10 @@ from cases import CASES, COVERAGE_SET  # noqa: E402
 from siva_core import Siva  # noqa: E402
 
 
-def run_case(case, runs: int, seed0: int, progress: bool = True) -> dict:
+def run_case(case, runs: int, seed0: int, progress: bool = True,
+             partial: Path | None = None) -> dict:
+    """``runs`` seeded fits of ``case``; after each, the runs so far go to ``partial``
+    (so a long benchmark stopped early still leaves its results)."""
     st = case.structure()
     names = st.free
     truth = case.theta()
@@ -62,6 +65,10 @@ def run_case(case, runs: int, seed0: int, progress: bool = True) -> dict:
         vt = res.metrics.get("validation_test", {}).get("best", {})
         row["validation_statistic"] = vt.get("statistic")
         rows.append(row)
+        if partial is not None:
+            partial.parent.mkdir(parents=True, exist_ok=True)
+            partial.write_text(json.dumps({"case": case.name, "names": names, "runs": rows},
+                                          indent=1))
         if progress:
             done = i + 1
             eta = (time.perf_counter() - t_case) / done * (runs - done)
@@ -111,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         grid.MEASURED_FORCE_INTERP = args.force_interp
     results = []
     for name in args.cases.split(","):
-        res = run_case(CASES[name], args.runs, args.seed)
+        res = run_case(CASES[name], args.runs, args.seed,
+                       partial=Path(args.out).with_suffix(f".{name}.partial.json"))
         res["force_interp"] = args.force_interp or "default"
         results.append(res)
         print(table(res), flush=True)
