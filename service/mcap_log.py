@@ -54,6 +54,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from siva_core import MCAP_MAGIC
 
+from .fingerprint import platform_fingerprint
+
 log = logging.getLogger("siva.mcap_log")
 
 FORMAT_VERSION = "siva-log/1"
@@ -61,6 +63,7 @@ TOPIC_SPEC = "/siva/spec"
 TOPIC_RECORDING = "/siva/recording"
 TOPIC_DATASET = "/siva/dataset"
 TOPIC_SNAPSHOT = "/siva/snapshot"
+PLATFORM_METADATA = "siva.platform"
 MAGIC = MCAP_MAGIC
 _FOOTER_OPCODE = 0x02
 _FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
@@ -163,6 +166,8 @@ class _SystemLog:
             self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
             self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
                                                **{k: str(v) for k, v in metadata.items()}})
+            # what bit-identity of a replay depends on (service/fingerprint.py)
+            self._writer.add_metadata(PLATFORM_METADATA, platform_fingerprint())
             self._sync()
         except BaseException:  # e.g. disk full: leave no headless file behind
             self.abandon()
@@ -238,9 +243,19 @@ class EventLog:
             for p in sorted(self.root.glob("*/*.mcap")):
                 try:
                     if not is_finished(p) and not _writer_alive(p):
-                        self.recovered.append(recover(p))
+                        self.recovered.append(recover(p, keep_partial=False))
+                        log.warning("event log %s was unfinished (a crash): recovered", p)
                 except (OSError, McapError, ValueError) as exc:
                     log.warning("cannot recover %s: %s", p, exc)
+            # copies kept by earlier versions once their log is finished (the recovery
+            # itself is recorded in the finished file's siva.recovery metadata)
+            for p in sorted(self.root.glob("*/*.mcap.partial")):
+                done = p.with_name(p.name[:-len(".partial")])
+                try:
+                    if done.exists() and is_finished(done) and not _writer_alive(done):
+                        p.unlink()
+                except OSError as exc:
+                    log.warning("cannot remove %s: %s", p, exc)
 
     # -- public API
     def path(self, system: str) -> Path | None:
@@ -537,12 +552,26 @@ def read_events(path: str | Path) -> list[LogEvent]:
     return out
 
 
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The metadata records of a log by name (the first of each name; footer optional):
+    ``siva`` (format, system, settings), ``siva.platform`` (the fingerprint, logs written
+    since it was added), ``siva.recovery`` / ``siva.repair`` (what start-up fixed)."""
+    records, _kept = _good_bytes(Path(path).read_bytes())
+    out: dict[str, dict[str, str]] = {}
+    for rec in records:
+        if isinstance(rec, Metadata):
+            out.setdefault(rec.name, dict(rec.metadata))
+    return out
+
+
 # ------------------------------------------------------------------------ recovery
-def recover(path: str | Path) -> Path:
+def recover(path: str | Path, *, keep_partial: bool = True) -> Path:
     """Finish an unfinished log: keep every complete record, add summary and footer.
 
-    The original is kept next to it as ``<name>.partial``; the returned path (the original
-    name) is a finished MCAP file.  A file that is already finished is returned unchanged.
+    The original is kept next to it as ``<name>.partial`` unless ``keep_partial`` is false
+    (the service's start-up: what was kept is noted in the ``siva.recovery`` metadata);
+    the returned path (the original name) is a finished MCAP file.  A file that is already
+    finished is returned unchanged.
     """
     path = Path(path)
     if is_finished(path):
@@ -574,11 +603,22 @@ def recover(path: str | Path) -> Path:
                 w.add_message(channel_ids[rec.channel_id], log_time=rec.log_time,
                               publish_time=rec.publish_time, sequence=rec.sequence,
                               data=rec.data)
-        w.add_metadata("siva.recovery", {"from": path.name + ".partial",
+        w.add_metadata("siva.recovery", {"from": path.name + (".partial" if keep_partial
+                                                              else " (unfinished, removed)"),
                                          "bytes_kept": str(end), "bytes_total": str(len(raw))})
         w.finish()
         fh.flush()
         os.fsync(fh.fileno())
-    os.replace(path, path.with_name(path.name + ".partial"))
+    if keep_partial:
+        os.replace(path, path.with_name(path.name + ".partial"))
     os.replace(tmp, path)
+    _fsync_dir(path.parent)
     return path
+
+
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
