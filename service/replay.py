@@ -36,9 +36,9 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from .fingerprint import fingerprint_differences, platform_fingerprint
-from .mcap_log import (PLATFORM_METADATA, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT,
-                       TOPIC_SPEC, LogEvent, RecordingEvent, SnapshotEvent, SpecEvent,
-                       read_events, read_metadata)
+from .mcap_log import (PLATFORM_METADATA, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_REPAIR,
+                       TOPIC_SNAPSHOT, TOPIC_SPEC, LogEvent, RecordingEvent, RepairEvent,
+                       SnapshotEvent, SpecEvent, read_events, read_metadata)
 
 #: a replay on another platform "reproduces" the log when every parameter mean is within
 #: this many of its published std of the logged one (docs/logs.md justifies the value)
@@ -84,6 +84,8 @@ class _Plan:
     files: list[str] = field(default_factory=list)
     exact: bool = True
     platforms: list[dict[str, str] | None] = field(default_factory=list)  # per file
+    # restart index -> the repair whose baseline trainer state that block starts from
+    baselines: dict[int, RepairEvent] = field(default_factory=dict)
 
 
 def log_files(path: str | Path | Sequence[str | Path]) -> list[Path]:
@@ -135,12 +137,27 @@ def _plan(files: Sequence[Path]) -> _Plan:
             [r for seg in segments for r in seg.of(TOPIC_RECORDING)])
         snaps = [s for seg in segments for s in seg.of(TOPIC_SNAPSHOT)]
         final_snap = snaps[-1] if snaps else None
+    baselines: dict[int, RepairEvent] = {}
     for seg in segments if exact else []:
         seg_sets = _segment_datasets(seg, final=seg is segments[-1])
         snaps = seg.of(TOPIC_SNAPSHOT)
+        base = next((r for r in seg.of(TOPIC_REPAIR) if r.baseline_state is not None), None)
+        if base is not None:
+            # start-up repaired a log that could not explain the checkpoint: training
+            # resumed from this logged state, so the replay does too (and what came before
+            # is superseded)
+            seg_sets = [d for d in seg_sets if d.epoch >= (base.baseline_epoch or 0)]
+            if datasets:
+                restarts.append(len(datasets))
+            baselines[restarts[-1]] = base
+            datasets.extend(seg_sets)
+            final_snap = None
+            if snaps:
+                final_snap = snaps[-1]
+            continue
         if seg_sets:
             start = seg_sets[0].epoch
-            if not datasets and start > 0:
+            if not datasets and start > 0 and not baselines:
                 raise ReplayError(f"{seg.path}: the service resumed from a checkpoint at epoch "
                                   f"{start}; pass the earlier logs of this system too "
                                   "(e.g. its log folder)")
@@ -165,7 +182,7 @@ def _plan(files: Sequence[Path]) -> _Plan:
     if final_snap is not None:
         counts = {k: int(v) for k, v in final_snap.estimate.n_recordings.items()}
     return _Plan(spec, recordings, datasets, restarts, final_epoch, final_snap, counts,
-                 [str(f) for f in files], exact, platforms)
+                 [str(f) for f in files], exact, platforms, baselines)
 
 
 def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
@@ -290,6 +307,9 @@ class _Replayer:
             if not block:
                 continue
             trainer = self.factory(self.structure, self.settings)
+            base = plan.baselines.get(bounds[k])
+            if base is not None:
+                trainer.load_state_dict(_load_state(base))
             last_log = None
             for ds in block:
                 while trainer.epoch < ds.epoch:
@@ -299,6 +319,52 @@ class _Replayer:
             while trainer.epoch < plan.final_epoch:
                 last_log = trainer.run_epoch()
         return trainer, last_log
+
+
+def _load_state(base: RepairEvent) -> dict[str, Any]:
+    """The baseline trainer state of a repair; loaded with torch's restricted unpickler
+    (tensors, plain containers and the numpy arrays a trainer state holds - nothing that
+    runs code), so a log from elsewhere cannot execute anything."""
+    import io
+
+    import numpy as np
+    import torch
+
+    raw = base.state_bytes()
+    assert raw is not None
+    allowed = [np.core.multiarray._reconstruct, np.ndarray, np.dtype,
+               type(np.dtype("float64")), type(np.dtype("uint32")), type(np.dtype("int64")),
+               type(np.dtype("bool")), type(np.dtype("float32")), type(np.dtype("int32"))]
+    with torch.serialization.safe_globals(allowed):
+        try:
+            return torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - say which log holds the bad state
+            raise ReplayError(f"repair of {base.system} at epoch {base.baseline_epoch}: its "
+                              f"baseline trainer state cannot be loaded ({exc})") from exc
+
+
+def explains(files: Sequence[Path], epoch: int, train: Sequence[str],
+             validation: Sequence[str], available: Iterable[str] = ()) -> str | None:
+    """Whether these logs reproduce a trainer resumed at ``epoch`` with this data set:
+    None when they do, else why not (used by start-up reconciliation; ``available``:
+    recording ids about to be logged, which count as present)."""
+    try:
+        plan = _plan(files)
+    except ReplayError as exc:
+        return str(exc)
+    block = plan.datasets[plan.restarts[-1]:]
+    before = [d for d in block if d.epoch <= epoch]
+    if not before:
+        return f"no data set logged at or before the checkpoint's epoch {epoch}"
+    last = before[-1]
+    if (last.train, last.validation) != (list(train), list(validation)):
+        return (f"the data set logged last before epoch {epoch} (at {last.epoch}) is not the "
+                "one the checkpoint trained on")
+    have = set(plan.recordings) | set(available)
+    missing = [r for d in before for r in d.train + d.validation if r not in have]
+    if missing:
+        return f"recordings used before epoch {epoch} are not in the log: {sorted(set(missing))}"
+    return None
 
 
 def _counting(factory: Any, progress: Any) -> Any:
