@@ -113,6 +113,16 @@ def _plan(files: Sequence[Path]) -> _Plan:
     spec: SpecEvent | None = None
     recordings: dict[str, RecordingEvent] = {}
     systems: set[str] = set()
+    # a repair's baseline supersedes every earlier file (their training history is what
+    # the repair found lost); they still lend their recordings, the same bytes by id
+    first = max((k for k, seg in enumerate(segments)
+                 if any(r.baseline_state is not None for r in seg.of(TOPIC_REPAIR))), default=0)
+    for seg in segments[:first]:
+        systems.update(e.event.system for e in seg.events)
+        for ev in seg.of(TOPIC_RECORDING):
+            recordings.setdefault(ev.id, ev)
+    segments = segments[first:]
+    platforms = platforms[first:]
     for seg in segments:
         systems.update(e.event.system for e in seg.events)
         for ev in seg.of(TOPIC_SPEC):

@@ -162,3 +162,39 @@ def test_restart_after_log_damage_replays(base: Path, tmp_path: Path, damage: st
     assert body["n_recordings"] == {"train": 2, "validation": 1}
     # the log was made here: the replay is bit-identical to the last published estimate
     assert cmp["platform"]["matches"] and cmp["verdict"] == "identical", cmp
+
+
+def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path) -> None:
+    """A system deleted and created again (another spec) whose log was then repaired: the
+    replay starts at the repair's baseline and does not trip over the older incarnation."""
+    from service.mcap_log import EventLog
+    from service.replay import _plan, explains, log_files
+
+    def spec(k: str) -> dict:
+        return {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [
+            {"kind": "spring", "between": ["x", "ground"], "params": {"k": k}}]}
+
+    est = {"parameters": {}, "discriminator": {}, "converged": False,
+           "n_recordings": {"train": 1, "validation": 1}}
+    with EventLog(tmp_path) as old:
+        old.log_spec("s", spec("k_old"))
+        old.log_recording("s", "r1", "train", b"a", "csv", 0)
+        old.log_recording("s", "r2", "validation", b"b", "csv", 0)
+        old.log_dataset("s", 0, ["r1"], ["r2"])
+        old.log_snapshot("s", {**est, "epoch": 4})
+    files = log_files(tmp_path / "logs" / "s")
+    assert explains(files, 4, ["r1"], ["r2"]) is None
+    with EventLog(tmp_path) as new:
+        new.log_spec("s", spec("k"))
+        new.log_repair("s", ["the log cannot reproduce the checkpoint"], [],
+                       {"epoch": 10, "state": b"state", "train": ["r1"], "validation": ["r2"]})
+        new.log_dataset("s", 10, ["r1"], ["r2"])
+        new.log_snapshot("s", {**est, "epoch": 12})
+    files = log_files(tmp_path / "logs" / "s")
+    assert len(files) == 2
+    plan = _plan(files)
+    assert plan.spec.spec == spec("k") and set(plan.recordings) == {"r1", "r2"}
+    assert [d.epoch for d in plan.datasets] == [10] and plan.final_epoch == 12
+    assert plan.baselines[0].baseline_epoch == 10 and plan.baselines[0].state_bytes() == b"state"
+    assert explains(files, 12, ["r1"], ["r2"]) is None
+    assert "not the one" in explains(files, 12, ["r2"], ["r1"])
