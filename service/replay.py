@@ -29,20 +29,19 @@ train and validation by role, all of them - an approximation of the service's bu
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .fingerprint import fingerprint_differences, platform_fingerprint
 from .mcap_log import (PLATFORM_METADATA, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_REPAIR,
                        TOPIC_SNAPSHOT, TOPIC_SPEC, LogEvent, RecordingEvent, RepairEvent,
                        SnapshotEvent, SpecEvent, read_events, read_metadata)
+from .replay_verdict import (REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison,
+                             summary_line)
 
-#: a replay on another platform "reproduces" the log when every parameter mean is within
-#: this many of its published std of the logged one (docs/logs.md justifies the value)
-REPRODUCED_TOLERANCE_IN_STD = 0.1
+__all__ = ["REPRODUCED_TOLERANCE_IN_STD", "ReplayError", "explains", "log_files", "replay",
+           "summary_line", "write_replay"]
 
 
 class ReplayError(ValueError):
@@ -428,22 +427,11 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
         "files": plan.files, "epochs": int(trainer.epoch),
         "data_changes": len(plan.datasets), "exact": plan.exact,
         "settings": plan.spec.settings,
-        "compared_to_log": _compare(out, plan.final_snapshot, _platform(plan),
-                                    tolerance_in_std),
+        "compared_to_log": compare_to_log(out, plan.final_snapshot,
+                                          platform_comparison(plan.platforms),
+                                          tolerance_in_std),
     })
     return out
-
-
-def _platform(plan: _Plan) -> dict[str, Any]:
-    """The current fingerprint against those of the replayed files (all must match for a
-    bit-identical replay: a resumed run carries the earlier file's arithmetic)."""
-    current = platform_fingerprint()
-    diffs: dict[str, list[Any]] = {}
-    for fp in plan.platforms:
-        for k, v in fingerprint_differences(fp, current).items():
-            diffs.setdefault(k, v)
-    return {"matches": not diffs, "differences": diffs, "current": current,
-            "logged": plan.platforms[-1] if plan.platforms else None}
 
 
 def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
@@ -462,68 +450,6 @@ def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
     if "drift" in est:
         out["drift"] = est["drift"]
     return out
-
-
-def _compare(out: dict[str, Any], snap: SnapshotEvent | None, platform: dict[str, Any],
-             tolerance: float) -> dict[str, Any] | None:
-    """The replay against the last logged snapshot: bits, the worst difference in std,
-    and the verdict (``identical``: the same bits; ``reproduced``: every mean within
-    ``tolerance`` of its published std; ``differs``: ``where`` lists what is off)."""
-    if snap is None:
-        return None
-    est = snap.estimate_dict()
-    logged = est.get("ensemble") or est.get("parameters") or {}
-    worst = 0.0
-    identical = snap.epoch == out["epoch"]
-    where: list[dict[str, Any]] = []
-    if snap.epoch != out["epoch"]:
-        where.append({"epoch": {"replayed": out["epoch"], "logged": snap.epoch}})
-    for p, s in (out.get("ensemble") or out["parameters"]).items():
-        ref = logged.get(p)
-        if not ref or ref.get("mean") is None or s.get("mean") is None:
-            identical = False
-            where.append({"parameter": p, "problem": "not in both the replay and the log"})
-            continue
-        d = abs(float(s["mean"]) - float(ref["mean"]))
-        identical &= d == 0.0 and s.get("std") == ref.get("std")
-        std = max(float(ref.get("std") or 0.0), 1e-300)
-        rel = d / std if d else 0.0
-        worst = max(worst, rel)
-        if not rel <= tolerance:
-            where.append({"parameter": p, "replayed": float(s["mean"]),
-                          "logged": float(ref["mean"]), "logged_std": ref.get("std"),
-                          "diff_in_std": rel if math.isfinite(rel) else None})
-    verdict = "identical" if identical else "differs" if where else "reproduced"
-    expected = "identical" if platform["matches"] else "reproduced"
-    out_cmp: dict[str, Any] = {
-        "epoch": snap.epoch, "identical": bool(identical),
-        "max_diff_in_std": worst if math.isfinite(worst) else None,
-        "verdict": verdict, "tolerance_in_std": tolerance,
-        "platform": {"matches": platform["matches"], "expected": expected,
-                     "differences": platform["differences"],
-                     "logged": platform["logged"], "current": platform["current"]}}
-    if where:
-        out_cmp["where"] = where
-    if verdict != "identical" and platform["matches"]:
-        out_cmp["note"] = ("the platform matches the log's, so bit-identity was expected: "
-                           "the training code changed since the log was written, or it is "
-                           "not deterministic")
-    return out_cmp
-
-
-def summary_line(result: dict[str, Any]) -> str:
-    """One line for stderr: the verdict, the measured difference, why."""
-    cmp = (result.get("replay") or {}).get("compared_to_log")
-    if not cmp:
-        return "replay: no logged snapshot to compare with"
-    plat = cmp["platform"]
-    why = ("platform matches the log's" if plat["matches"] else
-           "platform differs from the log's in " + ", ".join(
-               f"{k} ({a} -> {b})" for k, (a, b) in plat["differences"].items()))
-    diff = cmp["max_diff_in_std"]
-    diff_s = "n/a" if diff is None else f"{diff:.3g}"
-    return (f"replay: {cmp['verdict']} at epoch {cmp['epoch']}: max difference {diff_s} std "
-            f"(tolerance {cmp['tolerance_in_std']:g} std); {why}")
 
 
 def write_replay(log: str | Path, out: str | Path | None = None,
