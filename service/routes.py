@@ -13,7 +13,7 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from siva_core import media_types, resolve_format
+from siva_core import media_types, parse_pairs, resolve_format
 
 from .errors import ApiError, UploadTooLarge
 from .limits import LimitError, parse_spec_body
@@ -191,6 +191,13 @@ async def post_recording(
                                                  "Content-Type or file name"),
     filename: str | None = Query(None, alias="name",
                                  description="a name for the record, used in messages"),
+    map_: list[str] | None = Query(None, alias="map",
+                                   description="SRC=DST, repeatable: read the file's channel "
+                                               "SRC as column DST (e.g. 'Accel LO=acc_LO'); "
+                                               "over the spec's [channels] map"),
+    unit: list[str] | None = Query(None, description="COL=UNIT, repeatable: the unit a column "
+                                                     "was recorded in (e.g. acc_LO=g), "
+                                                     "converted to SI"),
 ) -> Response:
     """Upload one recording; 202 only once it is durably stored (temp, fsync, rename)."""
     svc = service_of(request)
@@ -212,8 +219,13 @@ async def post_recording(
     filename = filename or f"upload.{fmt}"
     if not raw:
         raise ApiError(422, f"{filename}: empty body, expected a recording")
+    try:
+        cmap, units = parse_pairs(map_, "map"), parse_pairs(unit, "unit")
+    except ValueError as exc:
+        raise ApiError(422, f"query parameter {exc}") from None
     ack = await run_in_threadpool(svc.add_recording, name, raw, role=role, fmt=fmt,
-                                  filename=filename)
+                                  filename=filename, channel_map=cmap or None,
+                                  units=units or None)
     return JSONResponse(ack, status_code=202)
 
 
