@@ -78,6 +78,9 @@ def hold_out(train: list[Recording], fraction: float = 0.25
     head, tail = rec.slice(0, cut), rec.slice(cut, stop)
     head.name = f"{rec.name}[:{cut}]"
     tail.name = f"{rec.name}[{cut}:{stop if stop < n else ''}]"
+    # the validation test predicts the held-out window from the record's start (its hit
+    # or initial state): mid-record, the state is only known through integration
+    tail.meta["held_out_of"] = (rec.slice(0, stop), float(rec.time[cut]))
     return [head], [tail], (f"validating on {why} of {rec.name} (t >= {rec.time[cut]:.4g} s), "
                             "training on the rest")
 
@@ -112,9 +115,10 @@ def _split_point(rec: Recording, fraction: float) -> tuple[tuple[int, int], str]
                         if end < n else f"the last {fraction:.0%} after the hit")
 
 
-def informative_end(rec: Recording, ratio: float = 4.0) -> int:
+def informative_end(rec: Recording, ratio: float = 10.0) -> int:
     """One past the last sample where some response channel's moving RMS is still
-    ``ratio`` x its white-noise level (the rest of the record is noise, or hum)."""
+    ``ratio`` x its white-noise level (20 dB: beyond it the record is mostly noise and hum,
+    which a held-out test would count against the model)."""
     from .validation import white_noise_sigma
 
     n = len(rec)
