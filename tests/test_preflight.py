@@ -29,6 +29,16 @@ def impact(lono) -> Recording:
                              seed=7)[0]
 
 
+@pytest.fixture(scope="module")
+def nominal(lono) -> Structure:
+    """The rig's spec with ``initial`` values (known modes)."""
+    spec = dict(lono.spec)
+    spec["parameters"] = {**spec.get("parameters", {}),
+                          **{p: {**spec.get("parameters", {}).get(p, {}), "initial": float(v)}
+                             for p, v in zip(lono.free, THETA)}}
+    return Structure.from_dict(spec)
+
+
 def _with(rec: Recording, **changes) -> Recording:
     chans = {k: v for k, v in rec.channels.items()}
     for k, v in changes.items():
@@ -72,12 +82,7 @@ def test_free_decay_without_force_passes(make_sdof, sdof_model):
     assert "force" not in _checks(check_recording(sdof_model, free))
 
 
-def test_nyquist_against_the_spec_modes(lono, impact):
-    spec = dict(lono.spec)
-    spec["parameters"] = {**spec.get("parameters", {}),
-                          **{p: {**spec.get("parameters", {}).get(p, {}), "initial": float(v)}
-                             for p, v in zip(lono.free, THETA)}}
-    nominal = Structure.from_dict(spec)
+def test_nyquist_against_the_spec_modes(nominal, impact):
     top = max(mode_frequencies(nominal, None))
     assert 15 < top < 30
     coarse = impact.slice(0, None)
@@ -119,9 +124,12 @@ def test_clipping_is_refused(lono, impact):
     assert any("acc_NO" in p.message and "saturated" in p.message for p in problems)
 
 
-def test_too_short_is_refused(lono, impact):
-    short = impact.slice(0, int(0.25 * impact.fs))
-    assert "too_short" in _checks(check_recording(lono, short))
+def test_too_short_is_refused(nominal, lono, impact):
+    short = impact.slice(0, int(0.25 * impact.fs))  # ~1.3 periods of the ~5 Hz mode
+    problems = check_recording(nominal, short)
+    assert "too_short" in _checks(problems)
+    assert any("lowest mode" in p.message and "record for" in p.message for p in problems)
+    assert "too_short" not in _checks(check_recording(nominal, impact))
 
 
 @pytest.mark.parametrize("case", ["no_force", "mixed_rates", "wrong_rate"])

@@ -247,8 +247,11 @@ class Recording:
         if dofs is not None:
             for d in dofs:
                 if not any(f"{q}_{d}" in parsed for q in ("disp", "vel", "acc")):
-                    raise RecordingError(f"{name}: DOF {d!r} has no column (need one of "
-                                         f"acc_{d}, vel_{d}, disp_{d})")
+                    listed = list(channels) if channels else [*ignored]
+                    raise RecordingError(
+                        f"{name}: DOF {d!r} has no column (need one of acc_{d}, vel_{d}, "
+                        f"disp_{d}; the file's channels: {listed}; map one, e.g. --map "
+                        f"\"NAME=acc_{d}\")")
         elif not any(c.partition("_")[0] in ("disp", "vel", "acc") for c in parsed):
             raise RecordingError(f"{name}: no response column (acc_<dof>, vel_<dof> or "
                                  f"disp_<dof>; columns: {list(columns)})")
