@@ -115,10 +115,10 @@ def _split_point(rec: Recording, fraction: float) -> tuple[tuple[int, int], str]
                         if end < n else f"the last {fraction:.0%} after the hit")
 
 
-def informative_end(rec: Recording, ratio: float = 10.0) -> int:
+def informative_end(rec: Recording, ratio: float = 4.0) -> int:
     """One past the last sample where some response channel's moving RMS is still
-    ``ratio`` x its white-noise level (20 dB: beyond it the record is mostly noise and hum,
-    which a held-out test would count against the model)."""
+    ``ratio`` x its white-noise level (beyond it the record is mostly noise and hum, which
+    a held-out test would count against the model, and which trains nothing)."""
     from .validation import white_noise_sigma
 
     n = len(rec)
