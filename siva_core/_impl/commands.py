@@ -10,7 +10,6 @@ import numpy as np
 
 from .inputs import read_fit_records
 from .recording import Recording
-from .siva import Siva
 from .structure import Structure
 
 
@@ -24,6 +23,8 @@ def identify_command(args: argparse.Namespace) -> int:
     for line in [*checked.notes, *(str(w) for w in checked.warnings)]:
         _progress(f"note: {line}")
     train, val = checked.train, checked.val
+    from .siva import Siva  # torch: only once the records passed the checks (refusals < 1 s)
+
     held_out = None
     if not val:
         train, val, held_out = hold_out(train)
