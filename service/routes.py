@@ -157,18 +157,29 @@ async def get_system(name: str, request: Request) -> dict[str, Any]:
     w = svc.worker(name)
     snap = w.snapshot()
     return {"name": name, "spec": svc.store.spec(name), "dofs": w.structure.dofs,
-            "free_parameters": w.structure.free, "state": snap.get("state"),
+            "free_parameters": w.structure.free,
+            "parameter_units": w.structure.parameter_units(), "state": snap.get("state"),
             "epoch": snap.get("epoch", 0), "converged": snap.get("converged", False),
             "n_recordings": svc.counts(name)}
 
 
 @router.delete("/v1/systems/{name}", tags=["systems"], responses=_ERRORS,
                dependencies=[Depends(require_token)])
-async def delete_system(name: str, request: Request) -> dict[str, Any]:
-    """Stop the worker and remove the system with all its recordings (irreversible)."""
+async def delete_system(
+    name: str, request: Request,
+    logs: str = Query("delete", description="the system's MCAP event logs: delete (default) "
+                                            "or archive (moved to <data>/archive/logs/)"),
+) -> dict[str, Any]:
+    """Stop the worker and remove the system with all its recordings (irreversible), and
+    its MCAP event logs: deleted, or archived with ``?logs=archive``; ``logs`` in the answer
+    says which (``action``: deleted | archived | none | kept, ``files``, ``archive``)."""
     check_name(name)
-    await run_in_threadpool(service_of(request).delete_system, name)
-    return {"deleted": name}
+    mode = logs.strip().lower()
+    if mode not in ("delete", "archive"):
+        raise ApiError(422, f"query parameter logs={logs!r}: must be 'delete' or 'archive'")
+    done = await run_in_threadpool(service_of(request).delete_system, name,
+                                   archive_logs=mode == "archive")
+    return {"deleted": name, **done}
 
 
 # --------------------------------------------------------------------------- recordings
