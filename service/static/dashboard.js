@@ -285,7 +285,7 @@ function renderModal(drift) {
       data.push(rows.map(r => (Array.isArray(r) ? numOr(r[m]) : null)));
     }
     upsertPlot("modal:" + key, box, { width: plotWidth(box), height: 200, scales: { x: { time: true } },
-      axes: [{ label: "time (local)" }, { size: 60, label: key === "frequency_hz" ? "Hz" : "–" }], series }, data);
+      axes: [{ label: "time (local)" }, { size: 60 }], series }, data);
   }
 }
 
