@@ -518,3 +518,18 @@ def test_exports_csv_over_http_and_cli(served, tmp_path: Path, capsys: pytest.Ca
     assert code == 0 and "drift.csv" in err and out_file.read_text().startswith("time_utc,epoch")
     code, out, _ = _cli(["export", "exp", "--what", "estimates"], capsys)
     assert code == 0 and out.startswith("quantity,unit,value,std,ci95_low,ci95_high")
+
+
+def test_estimate_summary_puts_a_rejected_model_first() -> None:
+    from clients import render
+
+    est = {"parameters": {"k": {"mean": 300.0, "std": 1.0, "ci95": [298.0, 302.0]}},
+           "epoch": 9, "n_recordings": {"train": 1, "validation": 1}, "time": 1.8e9,
+           "validation": {"accepted": False, "statistic": 6.8, "p_value": 1e-6}}
+    lines = render.render_estimate("s", est, {"k": "N/m"}).splitlines()
+    assert lines[0].startswith("MODEL REJECTED") and "T = 6.8" in lines[0]
+    assert "siva diagnose" in lines[0] and "as of 20" in lines[1]
+    est["validation"]["accepted"] = True
+    assert render.render_estimate("s", est, {}).splitlines()[0].startswith("validation: model accepted")
+    del est["validation"]
+    assert render.render_estimate("s", est, {}).startswith("s: ")  # no verdict, no banner
