@@ -78,7 +78,7 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]],
 
 def stream_widths(header: Sequence[str]) -> list[int]:
     """Fixed widths for a table printed row by row (``drift --watch`` to a file or pipe)."""
-    return [max(len(h), 9) for h in header]
+    return [max(len(h), 19 if h.startswith("time") else 9) for h in header]  # a local date-time
 
 
 def _interval(ci: Any) -> str:

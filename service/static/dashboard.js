@@ -32,9 +32,6 @@ function fmt(x, digits) {
 function localTime(t) {
   return typeof t === "number" && isFinite(t) ? new Date(t * 1000).toLocaleString() : "–";
 }
-function isoOf(t) {
-  return typeof t === "number" ? new Date(t * 1000).toISOString().replace(/\.\d+Z$/, "Z") : "–";
-}
 async function getJSON(path) {
   const r = await fetch(path, { headers: { Accept: "application/json" } });
   if (!r.ok) { const e = new Error(path + ": HTTP " + r.status); e.status = r.status; throw e; }
@@ -319,7 +316,7 @@ function renderLatest(lr) {
   for (const b of [box, specBox, cwtBox]) if (b.querySelector(".na")) b.replaceChildren();
   const rec = lr.record || {};
   if (lr.parameter_units) state.units = lr.parameter_units;
-  meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${rec.received_at_iso || isoOf(rec.received_at)}), ` +
+  meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${typeof rec.received_at === "number" ? localTime(rec.received_at) : (rec.received_at_iso || "?")}), ` +
     `simulated with ${lr.parameters_source || "?"}` + (lr.diverged ? " — the simulation diverged" : "");
   const dofs = Object.keys(lr.dofs || {});
   for (const d of dofs) {
@@ -452,7 +449,7 @@ async function refresh() {
     }
     state.tick++;
     status.classList.remove("error");
-    status.textContent = `live · ${systems.length} system(s) · updated ${new Date().toISOString().replace(/\.\d+Z$/, "Z")}`;
+    status.textContent = `live · ${systems.length} system(s) · updated ${new Date().toLocaleTimeString()}`;
   } catch (e) {
     status.classList.add("error");
     status.textContent = "cannot reach the service: " + (e.message || e) + " (retrying)";
