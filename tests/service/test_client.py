@@ -352,15 +352,16 @@ def test_upload_folder_skips_what_is_not_a_recording(server: str, tmp_path: Path
     (tmp_path / "b_notes.csv").write_text("this is not a recording\n")
     (tmp_path / "photo.jpg").write_bytes(b"\xff\xd8\xff")
     (tmp_path / "val_c.csv").write_bytes(small("val_v3.csv"))
-    code, out, err = _cli(["upload-folder", "skips", str(tmp_path)], capsys)
+    code, out, err = _cli(["upload-folder", "skips", str(tmp_path), "--json"], capsys)
     assert code == 0, err
     assert [Path(a["path"]).name for a in json.loads(out)] == ["a.csv", "val_c.csv"]
     assert "warning: skipping" in err and "photo.jpg" in err and "b_notes.csv" in err
     # delete: asks (no tty here: refused without --yes), then deletes
     code, _, err = _cli(["delete", "skips"], capsys)
     assert code == 2 and "--yes" in err
-    code, out, _ = _cli(["delete", "skips", "--yes"], capsys)
-    assert code == 0 and json.loads(out) == {"deleted": "skips"}
+    code, out, _ = _cli(["delete", "skips", "--yes", "--json"], capsys)
+    body = json.loads(out)
+    assert code == 0 and body["deleted"] == "skips" and body["logs"]["action"] == "deleted"
     code, _, err = _cli(["estimate", "skips"], capsys)
     assert code == 1 and "404" in err
 
