@@ -74,8 +74,9 @@ function safeTime(u, lo, hi) {
 function safeLog(u, lo, hi) {
   if (!(hi > 0) || !isFinite(hi)) return [1e-6, 1];
   const top = Math.min(hi * 2, Number.MAX_VALUE / 10);
-  const bottom = (lo > 0 && isFinite(lo)) ? Math.max(lo, hi * 1e-4) : hi * 1e-4;
-  return bottom < top / 1.01 ? [bottom, top] : [top / 100, top];
+  let bottom = (lo > 0 && isFinite(lo)) ? Math.max(lo, hi * 1e-4) : hi * 1e-4;
+  bottom = Math.pow(10, Math.floor(Math.log10(bottom)));  // a decade: ticks at 10^k only
+  return bottom > 0 && bottom < top / 1.01 ? [bottom, top] : [top / 100, top];
 }
 /** Create or update a uPlot keyed by id; re-created when the series layout changes. */
 function upsertPlot(id, container, opts, data) {
