@@ -5,8 +5,10 @@ reads return the worker's latest published snapshot, so no route ever waits for 
 """
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hmac
-from typing import Any
+from typing import Any, AsyncIterator
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
@@ -225,6 +227,37 @@ async def post_recording(
     svc.worker(name)  # 404 before reading a body for nothing
     role = _role(role)
     fmt = _format(format) if format else None
+    async with upload_slot(request):  # the body stays in the socket until there is room
+        return await _receive_recording(svc, name, request, role, fmt, filename)
+
+
+@contextlib.asynccontextmanager
+async def upload_slot(request: Request) -> AsyncIterator[None]:
+    """At most SIVA_MAX_CONCURRENT_UPLOADS recordings read and parsed at once (memory and
+    CPU stay bounded whatever the number of clients); a request waits up to
+    SIVA_UPLOAD_QUEUE_S for a slot, then gets 503 with Retry-After."""
+    settings = request.app.state.settings
+    slots = getattr(request.app.state, "upload_slots", None)
+    if slots is None:
+        slots = request.app.state.upload_slots = asyncio.Semaphore(
+            settings.max_concurrent_uploads)
+    try:
+        if slots.locked() and settings.upload_queue_s <= 0:
+            raise asyncio.TimeoutError
+        await asyncio.wait_for(slots.acquire(), timeout=max(settings.upload_queue_s, 1e-3))
+    except asyncio.TimeoutError:
+        raise ApiError(503, f"{settings.max_concurrent_uploads} uploads are being parsed and "
+                            f"none finished within {settings.upload_queue_s:g} s; retry later "
+                            "(SIVA_MAX_CONCURRENT_UPLOADS, SIVA_UPLOAD_QUEUE_S)",
+                       headers={"Retry-After": "5"}) from None
+    try:
+        yield
+    finally:
+        slots.release()
+
+
+async def _receive_recording(svc: Any, name: str, request: Request, role: str | None,
+                             fmt: str | None, filename: str | None) -> Response:
     media = _media_type(request)
     if media == "multipart/form-data":
         raw, part_name, part_type, form_role = await _multipart(request)

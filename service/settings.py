@@ -112,7 +112,7 @@ class Settings:
     min_sampling_rate_hz: float = 1.0   # recordings outside this range are refused (422)
     max_sampling_rate_hz: float = 1.0e6
     max_concurrent_uploads: int = 2     # recordings read and parsed at once; others wait
-    upload_queue_s: float = 10.0        # ... at most this long, then 503 with Retry-After
+    upload_queue_s: float = 30.0        # ... at most this long, then 503 with Retry-After
     # Browser safety (service/security.py, docs/reliability.md).
     allowed_hosts: str = ""             # comma list of Host names; "": loopback + bound host
     allowed_origins: str = ""           # comma list of extra origins allowed to write
