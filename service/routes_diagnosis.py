@@ -30,6 +30,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
 from .errors import ApiError
+from .schemas import ErrorDetail
 from .routes import errors, require_read_token, require_write_rights, service_of
 
 log = logging.getLogger("siva.service.diagnosis")
@@ -216,7 +217,10 @@ async def get_diagnosis(name: str, request: Request,
 
 
 @router.get("/v1/systems/{name}/diagnosis/report", tags=["diagnosis"],
-            response_class=HTMLResponse, responses=errors(401, 404, 409, 422),
+            response_class=HTMLResponse,
+            responses={code: {"description": v["description"], "content": {"application/json": {
+                "schema": ErrorDetail.model_json_schema()}}}
+                for code, v in errors(401, 404, 409, 422).items()},
             dependencies=[Depends(require_read_token)])
 async def get_diagnosis_report(name: str, request: Request,
                                quick: bool = Query(False)) -> HTMLResponse:

@@ -75,3 +75,34 @@ def test_ten_parallel_hostile_uploads_stay_under_1gb(make_server, linear):
           f"server peak growth {mem.growth_mb:.0f} MB")
     assert all(code in (413, 422, 503) for code in codes), codes
     assert mem.growth_mb <= 1024, mem.growth_mb
+
+
+def test_concurrent_parses_are_bounded_503_with_retry_after(make_server, linear, oscillator):
+    """One slot, no queue: while an upload holds the slot (its body still arriving), the
+    next is answered 503 with Retry-After; once the first finishes, uploads go through."""
+    import socket
+
+    s = make_server(env={**ENV, "SIVA_MAX_CONCURRENT_UPLOADS": "1",
+                         "SIVA_UPLOAD_QUEUE_S": "0"})
+    with s.client() as c:
+        assert c.put("/v1/systems/h", json={**linear, "name": "h"}).status_code == 201
+    body = oscillator()
+    with socket.create_connection(("127.0.0.1", s.port), timeout=60) as slow:
+        slow.sendall(b"POST /v1/systems/h/recordings?role=train HTTP/1.1\r\n"
+                     b"Host: 127.0.0.1\r\nContent-Type: text/csv\r\n"
+                     + f"Content-Length: {len(body)}\r\n\r\n".encode() + body[:100])
+        with httpx.Client(base_url=s.base_url, timeout=60) as c:
+            for _ in range(100):  # until the slow request holds the slot
+                r = c.post("/v1/systems/h/recordings?role=train", content=oscillator(v0=0.7),
+                           headers={"content-type": "text/csv"})
+                if r.status_code == 503:
+                    break
+            assert r.status_code == 503, r.text
+            assert int(r.headers["retry-after"]) > 0
+            assert "SIVA_MAX_CONCURRENT_UPLOADS" in r.json()["detail"]
+            slow.sendall(body[100:])
+            answer = slow.recv(65536)
+            assert b" 202 " in answer.split(b"\r\n")[0], answer[:200]
+            r = c.post("/v1/systems/h/recordings?role=train", content=oscillator(v0=0.9),
+                       headers={"content-type": "text/csv"})
+            assert r.status_code == 202, r.text
