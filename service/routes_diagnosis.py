@@ -175,7 +175,12 @@ def _current(request: Request, name: str, quick: bool, start: bool) -> Diagnosis
     if not start:
         raise ApiError(404, f"system {name!r}: no diagnosis of the current records yet "
                             f"(GET /v1/systems/{name}/diagnosis starts one)")
-    require_write_rights(request, "starting a diagnosis")
+    try:
+        require_write_rights(request, "starting a diagnosis")
+    except ApiError:
+        if job is not None and job.key == key:
+            return job  # a reader sees the failed or cancelled run; a writer restarts it
+        raise
     with jobs.lock:
         old = jobs.by_system.get(name)
         if old is not None and old.key == key and old.state not in ("failed", "cancelled"):
