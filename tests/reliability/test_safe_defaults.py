@@ -53,27 +53,6 @@ def test_every_read_needs_the_token_when_asked(locked):
             assert auth.get(path).status_code == 200, path
 
 
-def test_starting_a_diagnosis_needs_write_rights(make_server, linear, oscillator):
-    # reads are open here (no SIVA_API_TOKEN_READS), but starting a run is a write
-    s = make_server(env={"SIVA_API_TOKEN": TOKEN, "SIVA_REFINE_EVERY_S": "0"})
-    with s.client() as c:
-        assert c.put("/v1/systems/d", json={**linear, "name": "d"}).status_code == 201
-        for role, v0 in (("train", 1.0), ("validation", 0.6)):
-            assert c.post(f"/v1/systems/d/recordings?role={role}", content=oscillator(v0=v0),
-                          headers={"content-type": "text/csv"}).status_code == 202
-    path = "/v1/systems/d/diagnosis?quick=true"
-    with httpx.Client(base_url=s.base_url, timeout=30) as anon, s.client() as auth:
-        r = anon.get(path)
-        assert r.status_code == 401 and "writes need" in r.json()["detail"], r.text
-        assert anon.get("/v1/systems/d/diagnosis/report?quick=true").status_code == 404
-        started = auth.get(path)
-        assert started.status_code == 202, started.text
-        # once it runs, its progress is a read: no token needed
-        assert anon.get(path).status_code in (200, 202)
-        assert auth.get("/v1/systems/d/diagnosis?quick=false").status_code == 202
-        auth.delete("/v1/systems/d")  # stops the run's data; ends the test's CPU use early
-
-
 def test_cross_site_writes_are_refused(open_srv, oscillator):
     url = open_srv.base_url
     with httpx.Client(base_url=url, timeout=60) as c:
