@@ -111,3 +111,25 @@ def test_security_headers_on_html_and_api(open_srv):
         # Swagger UI's one inline script is allowed by its hash, nothing else inline
         assert "'sha256-" in docs.headers["content-security-policy"]
         assert "/static/vendor/swagger-ui/swagger-ui-bundle.js" in docs.text
+
+
+def test_host_and_origin_rules():
+    """The allow-lists as functions: defaults, configured, wildcard binds, extra origins."""
+    import socket
+
+    from service.security import allowed_hosts, cross_site
+
+    loop = allowed_hosts(None, "127.0.0.1")
+    assert {"localhost", "127.0.0.1", "::1"} <= loop and "evil.example" not in loop
+    assert "10.0.0.5" in allowed_hosts([], "10.0.0.5")
+    assert socket.gethostname().lower() in allowed_hosts(None, "0.0.0.0")
+    assert allowed_hosts(["siva.example.org:8000"], "0.0.0.0") >= {"siva.example.org",
+                                                                    "localhost"}
+    assert allowed_hosts(["*"], "127.0.0.1") is None
+    ops = "https://ops.example.org"
+    assert cross_site({"host": "siva:1", "origin": ops, "sec-fetch-site": "cross-site"},
+                      [ops]) is None
+    assert cross_site({"host": "siva:1", "origin": "https://evil.example"}, [ops])
+    assert cross_site({"host": "siva:1", "origin": "http://siva:1"}) is None
+    assert cross_site({"host": "siva:1", "origin": "http://siva:2"})
+    assert cross_site({"host": "siva:1"}) is None  # curl, httpx, siva-client
