@@ -62,6 +62,7 @@ ENV_VARS: dict[str, str] = {
     "SIVA_ALLOWED_ORIGINS": "allowed_origins",
     "SIVA_MAX_CONCURRENT_UPLOADS": "max_concurrent_uploads",
     "SIVA_UPLOAD_QUEUE_S": "upload_queue_s",
+    "SIVA_UPLOAD_BYTES_IN_FLIGHT": "upload_bytes_in_flight",
 }
 
 
@@ -111,7 +112,8 @@ class Settings:
     max_parameters: int = 32            # free parameters (each costs training time)
     min_sampling_rate_hz: float = 1.0   # recordings outside this range are refused (422)
     max_sampling_rate_hz: float = 1.0e6
-    max_concurrent_uploads: int = 2     # recordings read and parsed at once; others wait
+    max_concurrent_uploads: int = 16    # recordings read and parsed at once; others wait
+    upload_bytes_in_flight: int = 128 * 1024 * 1024  # ... declaring at most this together
     upload_queue_s: float = 30.0        # ... at most this long, then 503 with Retry-After
     # Browser safety (service/security.py, docs/reliability.md).
     allowed_hosts: str = ""             # comma list of Host names; "": loopback + bound host
@@ -139,7 +141,7 @@ class Settings:
                     "refine_candidates", "drift_baseline_records", "headline_window",
                     "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
                     "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor",
-                    "max_concurrent_uploads")
+                    "max_concurrent_uploads", "upload_bytes_in_flight")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
