@@ -3,7 +3,7 @@
 Why: ``bytes.decode().splitlines()`` of a 60 MB file holds the text twice plus one Python
 string per line (1.5 GB for a 60 MB CSV of short rows, issue 19).  Here the body is checked
 as UTF-8 block by block, rows are counted with ``bytes.count`` (no copy) so the caller can
-check the value count before allocating its arrays, and lines are handed out ~1 MiB at a
+check the value count before allocating its arrays, and lines are handed out 256 KiB at a
 time, each at most ``max_line`` bytes (a 60 MB line is refused, not tokenised).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Iterator
 from ._base import RecordingError, RecordingTooLarge
 
 BOM = b"\xef\xbb\xbf"
-BLOCK = 1 << 20
+BLOCK = 1 << 18  # 256 KiB: its list of line strings stays a few MB
 _WS = b" \t\r\n\x0b\x0c"
 
 
