@@ -75,6 +75,7 @@ class SivaService:
         self.workers: dict[str, TrainerHandle] = {}
         self.executor: Any = None
         self.broken: dict[str, str] = {}
+        self.repairs: dict[str, Any] = {}  # name -> service.reconcile.Repair (this start)
         self._lock = threading.Lock()
         # supervision: a trainer thread that died is replaced (from its checkpoint) after
         # a back-off; until then /healthz says so
@@ -103,6 +104,7 @@ class SivaService:
                 continue
             self.structures[name] = structure
             self._safe_event("log_spec", name, self.store.spec(name))
+            self._reconcile(name)
             self._start_worker(name, structure)
         log.info("service started: %d system(s) from %s", len(self.structures),
                  self.settings.data_dir)
@@ -179,6 +181,19 @@ class SivaService:
         with self._lock:
             self.workers[name] = w
         w.start()
+
+    def _reconcile(self, name: str) -> None:
+        """Bring the event log of ``name`` in line with the store before its trainer
+        starts (service/reconcile.py); a failure is logged, never fatal: the log is an
+        audit trail, the store keeps serving."""
+        from .reconcile import reconcile
+
+        if not hasattr(self.events, "folder"):  # the event log is disabled
+            return
+        try:
+            self.repairs[name] = reconcile(self.events, self.store, name)
+        except Exception:  # noqa: BLE001
+            log.exception("event log of %s: start-up reconciliation failed", name)
 
     def _safe_event(self, method: str, *args: Any, **kw: Any) -> None:
         try:

@@ -650,6 +650,12 @@ class SystemWorker:
             return
         with self._monitor_lock:  # a consistent monitor (no fit half-applied)
             extra = {"monitor": self.monitor.state_dict(), "best": self._best}
+        position = getattr(self.events, "position", None)
+        if position is not None:  # which log explains this state (service/reconcile.py)
+            try:
+                extra["log"] = position(self.name)
+            except Exception:  # noqa: BLE001 - an audit aid, never a reason not to checkpoint
+                pass
         state = checkpoint_state(self.structure.spec, self.trainer, self.history,
                                  self._train_ids, self._val_ids, extra)
         try:

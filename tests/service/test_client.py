@@ -259,10 +259,16 @@ def test_dockerfile_builds_what_the_repo_has() -> None:
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert f"torch=={args['TORCH_VERSION']}" in pyproject["project"]["dependencies"]
     runs = [a for k, a in steps if k == "RUN"]
+    # torch first (its own layer), then the rest: all from requirements.lock, hash-checked
     torch_run = next(r for r in runs if "torch==" in r)
-    assert runs.index(torch_run) < next(i for i, r in enumerate(runs) if "pip install -c" in r
-                                        and " . " in r)
-    assert "--index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
+    rest = next(i for i, r in enumerate(runs) if "-r /tmp/requirements.lock" in r)
+    assert runs.index(torch_run) < rest
+    for r in (torch_run, runs[rest]):
+        assert "--require-hashes --no-deps" in r
+    assert "--no-deps --no-build-isolation ." in runs[rest]
+    assert "--extra-index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
+    lock = (ROOT / "requirements.lock").read_text()
+    assert f"\ntorch=={args['TORCH_VERSION']}+cpu " in lock
     for k, a in steps:
         if k == "COPY":
             *sources, _dest = shlex.split(a)
@@ -299,6 +305,21 @@ def test_compose_file() -> None:
     hc = svc["healthcheck"]["test"]
     assert hc[0] == "CMD" and any("/healthz" in part for part in hc)
     compile(hc[-1], "<healthcheck>", "exec")
+
+
+@pytest.mark.parametrize("text, mb", [("3.229MB", "3.229"), ("3.229 MB", "3.229"),
+                                      ("612kB", "0.612"), ("1.2GB", "1200.000"),
+                                      ("850B", "0.001"), ("25MB", "25.000")])
+def test_smoke_reads_docker_context_sizes_with_or_without_a_space(text: str, mb: str) -> None:
+    """docker prints "3.229MB" (issue 19: the smoke failed, it expected "3.229 MB")."""
+    import subprocess
+
+    out = subprocess.run(["bash", str(DOCKER / "smoke.sh"), "--context-mb", text],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0 and out.stdout.strip() == mb, (out.stdout, out.stderr)
+    bad = subprocess.run(["bash", str(DOCKER / "smoke.sh"), "--context-mb", "lots"],
+                         capture_output=True, text=True, timeout=30)
+    assert bad.returncode != 0
 
 
 def test_docker_context_is_small_and_has_what_copy_needs() -> None:
