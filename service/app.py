@@ -28,6 +28,7 @@ from siva_core import RecordingTooLarge
 from .errors import ApiError, UploadTooLarge
 from .routes import router
 from .limits import LimitError, check_sampling_rate, check_structure
+from .security import SecurityMiddleware, allowed_hosts
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
 from .uploads import parse_upload
@@ -389,6 +390,10 @@ class BodyLimitMiddleware:
                 await _send_json(send, 413, str(exc))
 
 
+def _csv(text: str) -> list[str]:
+    return [x.strip() for x in (text or "").split(",") if x.strip()]
+
+
 def _too_large(limit: int, what: str) -> str:
     return f"request body too large: {what}, the limit is {limit} bytes (SIVA_MAX_UPLOAD_BYTES)"
 
@@ -466,6 +471,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        "this is a bug, it has been logged"}, status_code=500)
 
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
+    app.add_middleware(SecurityMiddleware,  # Host allow-list, cross-site writes, headers
+                       hosts=allowed_hosts(_csv(settings.allowed_hosts), settings.bind_host),
+                       origins=_csv(settings.allowed_origins))
     metrics.install(app, service)  # GET /metrics; its middleware outermost (counts 413s too)
     return app
 
