@@ -47,7 +47,9 @@ def identify_command(args: argparse.Namespace) -> int:
                                 val=" ".join(args.val) if args.val else None)
     if not args.quiet:
         _progress("\n" + verdict.text())
-    text = json.dumps(result.to_json(), indent=2)
+    out = result.to_json()
+    out["assessment"] = verdict.to_json()  # with the commands filled in
+    text = json.dumps(out, indent=2)
     if args.out:
         Path(args.out).write_text(text + "\n")
     else:
