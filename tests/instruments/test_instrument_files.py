@@ -195,3 +195,23 @@ def test_tdms_identifies_as_the_csv_does_cli_and_http(tmp_path, service, impacts
         lo, hi = e.get("best_ci95") or (e["best"], e["best"])
         tol = max(0.03 * abs(e["best"]), hi - lo)  # 3 %, or the interval's width if wider
         assert abs(got[name] - e["best"]) <= tol, (name, got[name], e["best"])
+
+
+def test_client_uploads_with_mapping(service, tmp_path, impacts, capsys):
+    """``siva-client upload --map ... --unit ...`` sends the mapping as the upload's query."""
+    from clients.cli import main as client_main
+
+    path = write_tdms(impacts[0], tmp_path / "hit.tdms")
+    with httpx.Client(base_url=service, timeout=60) as c:
+        assert c.put("/v1/systems/rig-c", json=_spec()).status_code in (200, 201)
+    # without the mapping the file is refused, naming its channels
+    assert client_main(["--url", service, "upload", "rig-c", str(path)]) != 0
+    assert "'Accel LO'" in capsys.readouterr().err
+    flags = [f for s, d in MAPS["tdms"].items() for f in ("--map", f"{s}={d}")]
+    flags += [f for col, u in UNITS["tdms"].items() for f in ("--unit", f"{col}={u}")]
+    assert client_main(["--url", service, "--json", "upload", "rig-c", str(path),
+                        "--role", "train", *flags]) == 0
+    ack = json.loads(capsys.readouterr().out)
+    assert {"acc_LO", "acc_NO", "force_NO"} <= set(ack["columns"])
+    with httpx.Client(base_url=service, timeout=60) as c:
+        c.delete("/v1/systems/rig-c", params={"yes": "true"})
