@@ -65,7 +65,8 @@ def serve_command(args: argparse.Namespace) -> int:
     if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
         data_dir = None  # the parser's default: let the environment decide
     settings = Settings.from_env(data_dir=data_dir, executor=getattr(args, "executor", None),
-                                 ray_address=getattr(args, "ray_address", None))
+                                 ray_address=getattr(args, "ray_address", None),
+                                 bind_host=args.host)
     if settings.executor == "ray":
         try:
             import ray  # noqa: F401

@@ -41,6 +41,7 @@ import io
 import json
 import logging
 import os
+import shutil
 import struct
 import threading
 import time
@@ -97,6 +98,9 @@ class RecordingEvent(BaseModel):
     sha256: str
     data: str = Field(description="the uploaded bytes, base64 (RFC 4648)")
     wall_time: float
+    channel_map: dict[str, str] | None = Field(
+        None, description="the upload's ?map= channel renames (stored name -> column)")
+    units: dict[str, str] | None = Field(None, description="the upload's ?unit= declarations")
 
     def payload(self) -> bytes:
         """The uploaded bytes; checked against the logged hash so corruption is loud."""
@@ -327,12 +331,16 @@ class EventLog:
                     sl.abandon()
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
-                      epoch: int, name: str | None = None) -> None:
+                      epoch: int, name: str | None = None,
+                      channel_map: Mapping[str, str] | None = None,
+                      units: Mapping[str, str] | None = None) -> None:
         raw = bytes(raw_bytes)
         ev = RecordingEvent(system=system, id=str(rec_id), role=_role(role), format=fmt,
                             epoch=int(epoch), name=name, size=len(raw),
                             sha256=hashlib.sha256(raw).hexdigest(),
-                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time())
+                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time(),
+                            channel_map=dict(channel_map) if channel_map else None,
+                            units=dict(units) if units else None)
         self._write(system, TOPIC_RECORDING, ev)
 
     def log_dataset(self, system: str, epoch: int, train_ids: Sequence[str],
@@ -353,6 +361,40 @@ class EventLog:
         ev = SnapshotEvent(system=system, epoch=int(snap.get("epoch", 0) or 0), estimate=snap,
                            wall_time=time.time())
         self._write(system, TOPIC_SNAPSHOT, ev)
+
+    def remove(self, system: str, *, archive: bool = False) -> dict[str, Any]:
+        """Finish the system's open file, then delete its log folder or, with ``archive``,
+        move it to ``<data>/archive/logs/<system>-<UTC time>/`` (outside ``logs/``: no
+        longer recovered at start-up, nor stitched into a new system of the same name).
+
+        Returns what was done: ``{"action": "deleted" | "archived" | "none", "files": n}``
+        (+ ``"archive"``, the folder relative to the data directory).  Raises OSError when
+        the disk refuses (the caller reports it; the files are then still there)."""
+        with self._lock:
+            sl = self._logs.pop(system, None)
+            self._specs.pop(system, None)
+        if sl is not None:
+            with sl.lock:
+                try:
+                    sl.close()
+                except OSError as exc:
+                    log.warning("cannot finish %s: %s", sl.path, exc)
+                    sl.abandon()
+        folder = self.root / _safe(system)
+        if not folder.is_dir():
+            return {"action": "none", "files": 0}
+        files = len(list(folder.glob("*.mcap")))
+        if not archive:
+            shutil.rmtree(folder)
+            return {"action": "deleted", "files": files}
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        dest = self.root.parent / "archive" / "logs" / f"{_safe(system)}-{stamp}"
+        while dest.exists():
+            dest = dest.with_name(dest.name + "x")
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(folder, dest)
+        return {"action": "archived", "files": files,
+                "archive": str(dest.relative_to(self.root.parent))}
 
     def log_repair(self, system: str, reasons: Sequence[str], recordings: Sequence[str] = (),
                    baseline: Mapping[str, Any] | None = None) -> None:

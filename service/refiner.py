@@ -119,7 +119,8 @@ class Refiner:
             if meta is None:
                 return None  # deleted meanwhile
             raw = self.store.read_raw(self.name, meta)
-            recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt))
+            recs.append(Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt,
+                                       **meta.read_options(self.structure)))
         proc = job["processing"] if job["processing"] is not None else Processing()
         with REFINE_LOCK:
             if self._stop.is_set():

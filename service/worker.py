@@ -390,7 +390,8 @@ class SystemWorker:
             meta = by_id[rid]
             try:
                 raw = self.store.read_raw(self.name, meta)
-                self._recs[rid] = Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt)
+                self._recs[rid] = Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt,
+                                                 **meta.read_options(self.structure))
             except (OSError, RecordingError) as exc:
                 log.error("%s: recording %s unusable: %s", self.name, rid, exc)
                 self.rejected[rid] = str(exc)
@@ -608,7 +609,8 @@ class SystemWorker:
         meta = min(pending, key=lambda m: m.index)
         try:
             raw = self.store.read_raw(self.name, meta)
-            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt)
+            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt,
+                                 **meta.read_options(self.structure))
         except (OSError, RecordingError) as exc:
             self.monitor.processed_index = meta.index
             self.monitor.failures[meta.id] = str(exc)
