@@ -96,8 +96,9 @@ def table(result: dict) -> str:
         e2 = np.mean([abs(r["approach_II"]["rel_err"][k]) for r in rows])
         cb = np.mean([r["best"]["covered"][k] for r in rows])
         eb = np.mean([abs(r["best"]["rel_err"][k]) for r in rows])
-        lines.append(f"{p:>10} | {100 * c2:7.0f}% {100 * e2:12.3f}% {bias_se('approach_II', k):+10.2f} | "
-                     f"{100 * cb:9.0f}% {100 * eb:14.3f}% {bias_se('best', k):+12.2f}")
+        b2, bb = bias_se("approach_II", k), bias_se("best", k)
+        lines.append(f"{p:>10} | {100 * c2:7.0f}% {100 * e2:12.3f}% {b2:+10.2f} | "
+                     f"{100 * cb:9.0f}% {100 * eb:14.3f}% {bb:+12.2f}")
     t = np.mean([r["time_s"] for r in rows])
     lines.append(f"mean time per fit: {t:.1f} s")
     return "\n".join(lines)

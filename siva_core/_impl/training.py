@@ -375,7 +375,8 @@ class SivaTrainer:
         h["theta"].append(theta_epoch)
         was = self.monitor.converged
         conv = self.monitor.update(e, theta_epoch)
-        burn_in = self.settings.oe_burn_in if self.oe is not None else self.settings.ensemble_burn_in
+        s = self.settings
+        burn_in = s.oe_burn_in if self.oe is not None else s.ensemble_burn_in
         harvested = bool(conv and was and e > self.monitor.converged_at + burn_in)
         if harvested:
             self.ensemble.add(theta_epoch, e)

@@ -53,4 +53,5 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = ["Simulation", "simulate", "auto_substeps", "initial_state_and_force", "gate_force",
-           "compiled_kernel", "warmup", "stage_force", "MEASURED_FORCE_INTERP", "choose_backend", "OMEGA_H"]
+           "compiled_kernel", "warmup", "stage_force", "MEASURED_FORCE_INTERP", "choose_backend",
+           "OMEGA_H"]

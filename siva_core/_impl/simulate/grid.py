@@ -48,5 +48,6 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
         from scipy.interpolate import CubicSpline
 
         return CubicSpline(np.arange(T, dtype=float), F, axis=0)(x)
-    raise ValueError(f"force interpolation must be 'linear', 'moments' or 'cubic', got {interp!r}")
+    raise ValueError(f"force interpolation must be 'linear', 'moments' or 'cubic', "
+                     f"got {interp!r}")
 

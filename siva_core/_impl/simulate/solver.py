@@ -30,7 +30,8 @@ def simulate(structure: Any, theta: Any, t: Any, q0: Any, v0: Any, force: Any | 
              ) -> Simulation:
     """Simulate ``structure`` for one or many parameter sets on the uniform time axis ``t``.
 
-    theta (n_free,) or (B, n_free); q0, v0 (n_dof,) or (B, n_dof); force (T, n_dof), one per set (B, T, n_dof) (integer ``substeps``) or None,
+    theta (n_free,) or (B, n_free); q0, v0 (n_dof,) or (B, n_dof); force (T, n_dof), or one
+    per set (B, T, n_dof) (integer ``substeps``), or None,
     applied through the structure's force gains and linearly interpolated between samples.
     ``substeps`` RK4 steps per sample; ``"auto"``/``None`` chooses them (``auto_substeps``)
     so that omega*h <= ``omega_h`` for the fastest linearised *and* amplitude-dependent
