@@ -42,10 +42,15 @@ def main() -> int:
     ap.add_argument("--val", nargs="+", default=["impact_37N.csv", "impact_899N.csv"])
     ap.add_argument("--truth", default="truth.json")
     ap.add_argument("--no-truth", action="store_true")
-    ap.add_argument("--timeout", type=float, default=150.0)
+    ap.add_argument("--timeout", type=float, default=240.0)
     ap.add_argument("--then", nargs="*", default=[], help="more train records uploaded after "
                     "the first estimate is final (one every --every s)")
     ap.add_argument("--every", type=float, default=20.0)
+    ap.add_argument("--stream", type=int, default=0, help="simulated LO-NO impacts (service/"
+                    "demo.py) streamed as train records after the estimate is final")
+    ap.add_argument("--k1-factor", type=float, default=1.0, help="k1 of the streamed records "
+                    "x this (0.85: the -15 %% drop of must-show 4; 1: static data)")
+    ap.add_argument("--seed", type=int, default=2026)
     args = ap.parse_args()
     data = Path(args.data)
     truth = None if args.no_truth else json.loads((data / args.truth).read_text())["truth"]
@@ -75,7 +80,17 @@ def main() -> int:
                 r.raise_for_status()
         print(f"uploaded at t=0; load average {os.getloadavg()}", flush=True)
         done_at = None
-        extra = list(args.then)
+        extra: list = list(args.then)
+        if args.stream:
+            import numpy as np
+
+            from service.demo import LONO_TRUTH, simulate_impact, to_csv
+
+            rng = np.random.default_rng(args.seed)
+            theta = {**LONO_TRUTH, "k1": LONO_TRUTH["k1"] * args.k1_factor}
+            for _ in range(args.stream):
+                extra.append(to_csv(simulate_impact(theta, float(rng.uniform(200, 900)), rng)))
+        sent = 0
         next_up = None
         while time.time() - t0 < args.timeout:
             time.sleep(3)
@@ -115,11 +130,19 @@ def main() -> int:
                 next_up = time.time()
                 if not extra:
                     break
+            if done_at is not None and not extra and sent and (
+                    e.get("alarms") or time.time() >= (next_up or 0)):
+                mon = e.get("monitoring") or {}
+                print(f"== streamed {sent}; alarms: {[a.get('message') for a in e.get('alarms') or []]};"
+                      f" records fitted {mon.get('records_fitted')}", flush=True)
+                break
             if next_up is not None and extra and time.time() >= next_up:
                 f = extra.pop(0)
+                body = f if isinstance(f, bytes) else Path(f).read_bytes()
                 c.post("/v1/systems/bench/recordings", params={"role": "train"},
-                       content=Path(f).read_bytes(), headers={"content-type": "text/csv"})
-                print(f"-- uploaded {f}", flush=True)
+                       content=body, headers={"content-type": "text/csv"})
+                sent += 1
+                print(f"-- uploaded streamed record {sent} (k1 x {args.k1_factor})", flush=True)
                 next_up = time.time() + args.every
         print(json.dumps({k: e.get(k) for k in ("validation", "agreement", "drift_status",
                                                  "anchor")}, indent=1)[:4000])

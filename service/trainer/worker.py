@@ -496,15 +496,8 @@ class SystemWorker:
         if last is not None and (last[0] == self.data.version
                                  or now - last[1] < self.settings.refine_every_s):
             return
-        ens = tr.ensemble
-        if len(ens) == 0:
-            return
-        samples = np.array(ens.samples, dtype=float, copy=True)
-        epochs = np.asarray(ens.epochs)
-        need = min(REFINE_MIN_SAMPLES, getattr(ens, "maxlen", None) or REFINE_MIN_SAMPLES)
-        current = samples[epochs >= self._data_epoch]
-        samples = current if len(current) >= need else samples
-        if len(samples) < need:
+        samples = _candidates(tr, self._data_epoch)
+        if samples is None:
             return
         ds = self.data
         refine_ids = ds.train[-self.settings.refine_max_records:]
@@ -667,6 +660,28 @@ class SystemWorker:
             return self.store.counts(self.name)
         except UnknownSystem:
             return {"train": 0, "validation": 0}
+
+
+def _candidates(tr: Any, data_epoch: int) -> np.ndarray | None:
+    """Approach III's candidates: the harvested ensemble of the current data set, else the
+    per-epoch samples since convergence (the harvest's burn-in is not worth waiting for:
+    the refinement starts from the winner anyway); None while fewer than
+    ``REFINE_MIN_SAMPLES``."""
+    ens = tr.ensemble
+    samples = np.array(ens.samples, dtype=float, copy=True) if len(ens) else np.zeros((0, 0))
+    if len(ens):
+        current = samples[np.asarray(ens.epochs) >= data_epoch]
+        if len(current) >= REFINE_MIN_SAMPLES:
+            return current
+    conv_at = getattr(getattr(tr, "monitor", None), "converged_at", None)
+    hist = getattr(tr, "history", {}).get("theta", [])
+    if conv_at is not None and hist:
+        first = max(int(conv_at), data_epoch)
+        k = len(hist) - (int(tr.epoch) - first)  # history may be trimmed at its start
+        since = hist[max(0, k):]
+        if len(since) >= REFINE_MIN_SAMPLES:
+            return np.array(since, dtype=float)
+    return samples if len(samples) >= REFINE_MIN_SAMPLES else None
 
 
 def _best_from(d: Any) -> Best | None:
