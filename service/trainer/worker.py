@@ -364,18 +364,22 @@ class SystemWorker:
         self._state = "starting"
         self._publish()
 
-    def _restore_anchor(self) -> None:
+    def _restore_anchor(self, ds: DataSet | None) -> bool:
         """After a restart in the output-error phase: the checkpoint's anchor, recomputed
-        (deterministic) on its logged records, so training continues exactly."""
+        (deterministic) on its records, so training continues exactly.  True when it was
+        made on the data set ``ds`` (no re-anchoring needed)."""
         rec = getattr(self, "_resume_anchor", None)
         self._resume_anchor = None
         if not rec or self.trainer is None or getattr(self.trainer, "oe", None) is not None:
-            return
+            return False
         ids = list(rec["train"]) + list(rec["validation"])
         if any(i not in self.feed.recs for i in ids):
             log.warning("%s: the checkpoint's anchor records are gone; re-anchoring", self.name)
-            return
-        data = DataSet(0, 0, tuple(rec["train"]), tuple(rec["validation"]),
+            return False
+        same = ds is not None and (ds.train, ds.validation) == (tuple(rec["train"]),
+                                                                  tuple(rec["validation"]))
+        data = DataSet(ds.version if same and ds is not None else 0, int(self.trainer.epoch),
+                       tuple(rec["train"]), tuple(rec["validation"]),
                        processing_from(rec.get("processing")))
         anchor = build_anchor(self.structure, np.asarray(rec["theta"], dtype=float), data,
                               self.feed.records(data.train), self.feed.records(data.validation),
@@ -384,6 +388,7 @@ class SystemWorker:
         apply_anchor(self.trainer, anchor, resume=True)
         self.anchor = anchor
         self._log_anchor(anchor, resume=True)
+        return same
 
     def _checkpoint(self) -> None:
         if self.trainer is None:
@@ -422,8 +427,7 @@ class SystemWorker:
     def _refresh_data(self) -> None:
         ds = self.feed.refresh(int(self.trainer.epoch),
                                force=getattr(self.trainer, "train", None) is None)
-        if getattr(self, "_resume_anchor", None):
-            self._restore_anchor()
+        restored = bool(getattr(self, "_resume_anchor", None)) and self._restore_anchor(ds)
         if ds is None:
             return
         self.trainer.set_data(self.feed.train_states(), self.feed.val_states())
@@ -432,8 +436,8 @@ class SystemWorker:
         if self.events is not None:
             self.events.log_dataset(self.name, int(self.trainer.epoch), list(ds.train),
                                     list(ds.validation), processing=ds.processing)
-        if self._refiner is not None and (self.anchor is not None
-                                          or self._pending_anchor is not None):
+        if self._refiner is not None and not restored and (self.anchor is not None
+                                                           or self._pending_anchor is not None):
             # re-anchor at the headline once the refiner has fitted the new records
             self._anchor_job_version = ds.version
             self._refiner.submit(self._job("anchor", ds))
@@ -463,6 +467,11 @@ class SystemWorker:
         apply_anchor(self.trainer, anchor)
         self.anchor = anchor
         self._data_epoch = int(self.trainer.epoch)
+        if (self.data is not None and anchor.data.version < self.data.version
+                and self._refiner is not None and self._anchor_job_version < self.data.version):
+            # the data changed while the first anchor was computed: re-anchor on them
+            self._anchor_job_version = self.data.version
+            self._refiner.submit(self._job("anchor", self.data))
         log.info("%s: output-error phase anchored (%s, data version %d) at epoch %d",
                  self.name, anchor.source, anchor.data.version, self.trainer.epoch)
 
