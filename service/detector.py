@@ -53,18 +53,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .forming_baseline import YOUNG_MIN_SEGMENT, YOUNG_Z, young_change
+
 #: |z| below which a value counts as "back to baseline" when clearing a confirmed alarm
 CLEAR_Z = 2.0
 #: chi-square(1) 95 % quantile: change-point positions within this much cost of the best
 CHI2_1_95 = 3.841
 #: records segmented when locating a change (exact segmentation is quadratic in this)
 CHANGE_POINT_WINDOW = 300
-#: inside a forming baseline: |z| of a mean shift (best split) that raises an alarm
-YOUNG_Z = 6.0
-#: ... records needed on each side of the split
-YOUNG_MIN_SEGMENT = 2
-#: ... a record's own fit error counts this many times (its calibration is not known yet)
-YOUNG_SE_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -168,73 +164,19 @@ class ChangeDetector:
 
     # ------------------------------------------------------------------ forming baseline
     def _young_test(self) -> list[dict[str, Any]]:
-        """A change *inside* the forming baseline (step 0 of the module doc).
-
-        Until the baseline is complete the CUSUM has no reference, and a change during
-        those records would become the reference.  So each new record tests, per quantity,
-        one mean shift at the best split of the baseline records so far (at least
-        ``YOUNG_MIN_SEGMENT`` records on each side): precision-weighted means, each record's
-        scatter ``max(YOUNG_SE_FACTOR * se_i, min_rel_scatter * |median|)``, inflated by the
-        within-segment chi-square when the records scatter more than that.  |z| >=
-        ``YOUNG_Z`` raises a confirmed alarm (the records after the split are its
-        confirmation) and the baseline restarts after the change."""
-        s = self.settings
+        """A change *inside* the forming baseline (``forming_baseline.py``): alarms, and the
+        baseline restarts with the records after the change."""
         m = len(self.base[self.quantities[0]]) if self.quantities else 0
-        if m < 2 * YOUNG_MIN_SEGMENT:
+        found = young_change(self.base, self.records[len(self.records) - m:], self.kinds,
+                             self.settings.min_rel_scatter, len(self.alarms) + 1)
+        if found is None:
             return []
-        best: tuple[float, str, int] | None = None
-        stats: dict[str, dict[int, dict[str, float]]] = {}
+        t, alarms = found
+        self.alarms.extend(alarms)
         for q in self.quantities:
-            stats[q] = _split_tests(self.base[q], s.min_rel_scatter)
-            for t, st in stats[q].items():
-                if best is None or abs(st["z"]) > best[0]:
-                    best = (abs(st["z"]), q, t)
-        if best is None or best[0] < YOUNG_Z:
-            return []
-        t = best[2]
-        n = len(self.records)
-        first = n - m  # position of the first baseline record in self.records
-        out: list[dict[str, Any]] = []
-        for q in self.quantities:
-            st = stats[q].get(t)
-            if st is None or abs(st["z"]) < YOUNG_Z:
-                continue
-            cp_rec, last = self.records[first + t], self.records[-1]
-            direction = "increase" if st["z"] > 0 else "decrease"
-            rel = st["change"] / abs(st["before"]) if st["before"] else None
-            ci = [st["change"] - 1.96 * st["se"], st["change"] + 1.96 * st["se"]]
-            alarm = {"id": len(self.alarms) + 1, "parameter": q,
-                     "kind": self.kinds.get(q, "parameter"), "state": "confirmed",
-                     "active": True, "direction": direction, "young": True,
-                     "raised_record": cp_rec.get("id"), "raised_index": cp_rec.get("index"),
-                     "raised_time": cp_rec.get("time"), "records_above": m - t,
-                     "confirmed_record": last.get("id"), "confirmed_index": last.get("index"),
-                     "confirmed_time": last.get("time"), "cleared_record": None,
-                     "threshold": YOUNG_Z, "z": st["z"], "reference": st["before"],
-                     "value": st["after"], "cusum": [0.0, 0.0],
-                     "change_rel": rel,
-                     "change_rel_ci95": None if rel is None else [x / abs(st["before"]) for x in ci],
-                     "change_point": {"index": first + t, "interval": [first + t, first + t],
-                                      "record": cp_rec.get("id"),
-                                      "record_index": cp_rec.get("index"),
-                                      "interval_records": [cp_rec.get("index"), cp_rec.get("index")],
-                                      "change": st["change"], "change_ci95": ci,
-                                      "before_mean": st["before"], "after_mean": st["after"],
-                                      "n_before": t, "n_after": m - t}}
-            what = f"{q} {direction}d"
-            if rel is not None:
-                lo, hi = sorted(abs(x) * 100 for x in alarm["change_rel_ci95"])
-                what += f" by {abs(rel) * 100:.1f} % (95 % CI {lo:.1f}-{hi:.1f} %)"
-            alarm["message"] = (f"{what} at record {cp_rec.get('index')}, while the baseline "
-                                f"was still forming ({t} record(s) before, {m - t} after, "
-                                f"z = {st['z']:.1f}); confirmed; the baseline restarts after "
-                                "the change")
-            self.alarms.append(alarm)
-            out.append(alarm)
-        for q in self.quantities:  # the baseline restarts with the records after the change
             self.base[q] = self.base[q][t:]
         self.seen = m - t
-        return out
+        return alarms
 
     def young_report(self) -> dict[str, Any]:
         """What the forming-baseline test can see now (for the drift status)."""
@@ -501,34 +443,6 @@ def change_point(z: Sequence[float | None], values: Sequence[float | None],
             "change": change, "change_ci95": [change - 1.96 * se, change + 1.96 * se],
             "before_mean": float(before.mean()), "after_mean": float(after.mean()),
             "n_before": int(len(before)), "n_after": int(len(after))}
-
-
-def _split_tests(pairs: Sequence[Sequence[float | None]],
-                 min_rel: float) -> dict[int, dict[str, float]]:
-    """Mean-shift z at every split of baseline values (see ``_young_test``); keys are the
-    split positions in ``pairs`` (first record after the change)."""
-    ok = [i for i, (v, _) in enumerate(pairs) if v is not None]
-    if len(ok) < 2 * YOUNG_MIN_SEGMENT:
-        return {}
-    x = np.array([pairs[i][0] for i in ok], dtype=float)
-    e = np.array([pairs[i][1] if pairs[i][1] is not None else np.nan for i in ok], dtype=float)
-    floor = min_rel * abs(float(np.median(x)))
-    sc = np.where(np.isfinite(e) & (e > 0), YOUNG_SE_FACTOR * np.nan_to_num(e), 0.0)
-    sc = np.maximum(sc, floor)
-    if not np.all(sc > 0):
-        return {}
-    w = 1.0 / sc ** 2
-    out: dict[int, dict[str, float]] = {}
-    for t in range(YOUNG_MIN_SEGMENT, len(x) - YOUNG_MIN_SEGMENT + 1):
-        wb, wa = w[:t], w[t:]
-        mb = float(np.sum(wb * x[:t]) / np.sum(wb))
-        ma = float(np.sum(wa * x[t:]) / np.sum(wa))
-        chi = float(np.sum(wb * (x[:t] - mb) ** 2) + np.sum(wa * (x[t:] - ma) ** 2))
-        phi = max(1.0, chi / max(1, len(x) - 2))
-        se = math.sqrt(phi * (1.0 / np.sum(wb) + 1.0 / np.sum(wa)))
-        out[ok[t]] = {"z": (ma - mb) / se, "change": ma - mb, "se": se, "before": mb,
-                      "after": ma}
-    return out
 
 
 def _split_cost(x: np.ndarray, t: int) -> float:
