@@ -51,6 +51,8 @@ def main() -> int:
     ap.add_argument("--k1-factor", type=float, default=1.0, help="k1 of the streamed records "
                     "x this (0.85: the -15 %% drop of must-show 4; 1: static data)")
     ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--browser", default=None, help="when final: open the dashboard in "
+                    "headless Chromium, print the validation panel, save a screenshot here")
     args = ap.parse_args()
     data = Path(args.data)
     truth = None if args.no_truth else json.loads((data / args.truth).read_text())["truth"]
@@ -144,6 +146,29 @@ def main() -> int:
                 sent += 1
                 print(f"-- uploaded streamed record {sent} (k1 x {args.k1_factor})", flush=True)
                 next_up = time.time() + args.every
+        if args.browser and done_at is not None:
+            sys.path.insert(0, str(REPO / "tests"))
+            from browser_support import console_errors, full_page_screenshot, start_chromium
+
+            driver, _ = start_chromium()
+            try:
+                driver.get(base + "/#bench")
+                text = ""
+                for _ in range(60):
+                    text = driver.execute_script(
+                        "return document.getElementById('validation').innerText")
+                    if "model " in text:
+                        break
+                    time.sleep(0.5)
+                print("== dashboard validation panel (headless Chromium):\n" + text)
+                print("== console errors:", console_errors(driver))
+                full_page_screenshot(driver, Path(args.browser))
+            finally:
+                driver.quit()
+        metrics = c.get("/metrics").text
+        print("== /metrics:\n" + "\n".join(
+            line for line in metrics.splitlines()
+            if line.startswith(("siva_validation", "siva_model_rejected", "siva_ensemble_final"))))
         print(json.dumps({k: e.get(k) for k in ("validation", "agreement", "drift_status",
                                                  "anchor")}, indent=1)[:4000])
         return 0 if done_at is not None else 1
