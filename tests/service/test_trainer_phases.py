@@ -66,6 +66,21 @@ def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_pat
         assert "not a validation" in val["discriminator"]["what"]
         assert est["model_rejected"] is (val["verdict"] == "rejected")
         assert est["agreement"]["status"] in ("agree", "differ") and est["agreement"]["why"]
+        # a new record: the refiner fits it, then re-anchors at the headline (networks warm)
+        first_anchor = est["anchor"]
+        r = c.post("/v1/systems/osc/recordings", params={"role": "train"},
+                   content=oscillator_csv(v0=1.3), headers={"content-type": "text/csv"})
+        assert r.status_code == 202
+        while True:
+            est = c.get("/v1/systems/osc/estimate").json()
+            a = est.get("anchor") or {}
+            if (a.get("source") == "headline" and a["data_version"] > first_anchor["data_version"]
+                    and est.get("ensemble_state") == "final"
+                    and (est.get("validation") or {}).get("status") == "done"):
+                break
+            assert time.monotonic() < deadline + 200, f"no re-anchor: {a}"
+            time.sleep(0.5)
+        assert len(a["train"]) == 2 and est["epoch"] > 0
         metrics = c.get("/metrics").text
         assert 'siva_validation_statistic{of="headline",record="all",system="osc"}' in metrics
         assert 'siva_ensemble_final{system="osc"} 1.0' in metrics
@@ -73,7 +88,7 @@ def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_pat
     srv.stop()
     logs = sorted((tmp_path / "data" / "logs" / "osc").glob("*.mcap"))
     anchors = [e.event for f in logs for e in read_events(f) if e.topic == TOPIC_ANCHOR]
-    assert anchors and anchors[0].source == "best" and anchors[0].n_noise > 0
+    assert [a.source for a in anchors][:2] == ["best", "headline"] and anchors[0].n_noise > 0
     out = replay(logs)
     cmp = out["replay"]["compared_to_log"]
     assert cmp["identical"], cmp
