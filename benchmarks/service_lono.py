@@ -54,6 +54,9 @@ def main() -> int:
     ap.add_argument("--browser", default=None, help="when final: open the dashboard in "
                     "headless Chromium, print the validation panel, save a screenshot here")
     args = ap.parse_args()
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(2))  # so `finally` stops the server
     data = Path(args.data)
     truth = None if args.no_truth else json.loads((data / args.truth).read_text())["truth"]
     port = free_port()
