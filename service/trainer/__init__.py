@@ -10,11 +10,13 @@ Parts (one concern each, frozen values between them: ``types.py``):
 - ``readout.py``    the ensemble read-out, provisional until final (shared with replay)
 - ``validation.py`` the held-out test (T, p-value, verdict) for headline and ensemble
 - ``snapshot.py``   the published snapshot, agreement of ensemble and headline
+- ``factory.py``    making and stopping trainers
 """
 from __future__ import annotations
 
-from .readout import ENSEMBLE_MIN_SAMPLES
-from .worker import REFINE_MIN_SAMPLES, SystemWorker, base_snapshot, default_trainer, stop_workers
+from .factory import base_snapshot, default_trainer, stop_workers
+from .readout import ENSEMBLE_MIN_SAMPLES, REFINE_MIN_SAMPLES
+from .worker import SystemWorker
 
 __all__ = ["SystemWorker", "default_trainer", "base_snapshot", "stop_workers",
            "REFINE_MIN_SAMPLES", "ENSEMBLE_MIN_SAMPLES"]

@@ -11,8 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from siva_core import Structure
 
+#: ensemble epochs on the current data set needed before a refinement starts from them
+REFINE_MIN_SAMPLES = 10
 #: Approach II samples harvested on the current anchor before the ensemble is final
 ENSEMBLE_MIN_SAMPLES = 30
 #: never narrower than the simulator's accuracy (as ``Siva.fit``)
@@ -66,3 +70,25 @@ def read_ensemble(structure: Structure, trainer: Any) -> EnsembleReadout:
         params = {p: {k: v for k, v in s.items() if k not in ("ci95", "percentile95")}
                   for p, s in params.items()}
     return EnsembleReadout(params, source, phase, final, n)
+
+
+def candidates(tr: Any, data_epoch: int) -> np.ndarray | None:
+    """Approach III's candidates: the harvested ensemble of the current data set, else the
+    per-epoch samples since convergence (the harvest's burn-in is not worth waiting for:
+    the refinement starts from the winner anyway); None while fewer than
+    ``REFINE_MIN_SAMPLES``."""
+    ens = tr.ensemble
+    samples = np.array(ens.samples, dtype=float, copy=True) if len(ens) else np.zeros((0, 0))
+    if len(ens):
+        current = samples[np.asarray(ens.epochs) >= data_epoch]
+        if len(current) >= REFINE_MIN_SAMPLES:
+            return current
+    conv_at = getattr(getattr(tr, "monitor", None), "converged_at", None)
+    hist = getattr(tr, "history", {}).get("theta", [])
+    if conv_at is not None and hist:
+        first = max(int(conv_at), data_epoch)
+        k = len(hist) - (int(tr.epoch) - first)  # history may be trimmed at its start
+        since = hist[max(0, k):]
+        if len(since) >= REFINE_MIN_SAMPLES:
+            return np.array(since, dtype=float)
+    return samples if len(samples) >= REFINE_MIN_SAMPLES else None

@@ -7,6 +7,7 @@ shapes the HTTP API serves are built from them at the edge (``to_json``).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -161,3 +162,20 @@ class ValidationJob:
     headline: np.ndarray | None
     ensemble: np.ndarray | None
     key: tuple[Any, ...]
+
+
+def best_from(d: Any) -> Best | None:
+    """A :class:`Best` from its JSON (a checkpoint, the monitor's view)."""
+    if not d or not d.get("parameters"):
+        return None
+    params = {p: ParameterValue(float(v["value"]), v.get("std"),
+                                None if not v.get("ci95") else (v["ci95"][0], v["ci95"][1]),
+                                v.get("n"))
+              for p, v in d["parameters"].items() if v.get("value") is not None}
+    src = "records" if d.get("source") == "records" else "recommend_best"
+    return Best(params, int(d.get("epoch") or 0), int(d.get("n_records") or 0),
+                float(d.get("time") or time.time()), tuple(d.get("records") or ()), src,
+                str(d.get("method") or ""), output_error=d.get("output_error"),
+                refined=d.get("refined"), note=d.get("note"),
+                approach_III=d.get("approach_III"), n_candidates=d.get("n_candidates"),
+                seconds=d.get("seconds"), modal=d.get("modal"))

@@ -38,26 +38,24 @@ from typing import Any, Callable
 
 import numpy as np
 
-from siva_core import Processing, Recording, RecordingError, Structure
+from siva_core import Processing, Structure
 
 from ..checkpoints import checkpoint_state, matches
-from ..detector import DetectorSettings
 from ..drift import EstimateHistory
-from ..estimate import estimate_view, jsonable
-from ..monitor import RecordMonitor
+from ..estimate import estimate_view
 from ..settings import Settings
 from ..store import Store, UnknownSystem
 from .anchoring import anchor_record, apply_anchor, build_anchor, processing_from
 from .data import DataFeed, SystemDeleted
-from .readout import ENSEMBLE_MIN_SAMPLES, EnsembleReadout, output_error_wanted, read_ensemble
-from .refiner import REFINE_LOCK, Refiner
+from .factory import base_snapshot, default_trainer
+from .readout import (ENSEMBLE_MIN_SAMPLES, EnsembleReadout, candidates, output_error_wanted,
+                      read_ensemble)
+from .monitoring import Monitoring
+from .refiner import Refiner
 from .snapshot import SnapshotParts, build_snapshot, history_entry
-from .types import Anchor, Best, DataSet, ParameterValue, RefineJob, ValidationJob, Verdict
+from .types import Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict, best_from
 
 log = logging.getLogger("siva.service.worker")
-
-#: ensemble epochs on the current data set needed before a refinement starts from them
-REFINE_MIN_SAMPLES = 10
 
 
 class SystemWorker:
@@ -74,15 +72,8 @@ class SystemWorker:
         self._factory = trainer_factory or default_trainer
         self.feed = DataFeed(name, structure, store, settings)
         self.history = EstimateHistory(settings.history_limit)
-        self.monitor = RecordMonitor(structure, DetectorSettings(
-            baseline_records=settings.drift_baseline_records,
-            arl0_records=settings.drift_arl0_records,
-            min_rel_scatter=settings.drift_min_rel_scatter),
-            window=settings.headline_window, max_nfev=settings.record_max_nfev,
-            max_records=settings.history_limit)
-        self._monitor_view: dict[str, Any] = {"report": self.monitor.report(limit=0),
-                                              "best": None}
-        self._monitor_lock = threading.Lock()  # the monitor changes under it (refiner, reset)
+        self.monitoring = Monitoring(name, structure, store, settings)
+        self.monitor = self.monitoring.monitor
         self._snap_lock = threading.Lock()
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -195,15 +186,13 @@ class SystemWorker:
 
     def reset_drift(self) -> dict[str, Any]:
         """Forget baseline and alarms (after a repair): the next records form a new baseline."""
-        with self._monitor_lock:
-            self.monitor.reset()
-            with self._snap_lock:
-                self._update_monitor_view()
-                self._refresh_snapshot()
+        self.monitoring.reset(self.epoch)
+        with self._snap_lock:
+            self._refresh_snapshot()
         return self._drift_report
 
     def _report(self) -> dict[str, Any]:
-        view = self._monitor_view
+        view = self.monitoring.view
         snap = getattr(self, "_snapshot", {}) or {}
         return {**view["report"], "headline": {
                     "parameters": snap.get("parameters", {}),
@@ -347,10 +336,10 @@ class SystemWorker:
                 try:
                     self.trainer.load_state_dict(ckpt["trainer"])
                     self.history.load_state_dict(ckpt.get("drift", {}))
-                    self.monitor.load_state_dict(ckpt.get("monitor", {}))
-                    self._best = _best_from(ckpt.get("best"))
+                    self.monitoring.load_state_dict(ckpt.get("monitor", {}),
+                                                    int(self.trainer.epoch))
+                    self._best = best_from(ckpt.get("best"))
                     self._resume_anchor = ckpt.get("anchor")
-                    self._update_monitor_view()
                 except Exception:  # noqa: BLE001 - e.g. a trainer of another version
                     log.exception("%s: checkpoint unusable; training starts over", self.name)
                     self.trainer = self._factory(self.structure, self.settings)
@@ -393,10 +382,9 @@ class SystemWorker:
     def _checkpoint(self) -> None:
         if self.trainer is None:
             return
-        with self._monitor_lock:
-            extra = {"monitor": self.monitor.state_dict(),
-                     "best": None if self._best is None else self._best.to_json(),
-                     "anchor": None if self.anchor is None else anchor_record(self.anchor)}
+        extra = {"monitor": self.monitoring.state_dict(),
+                 "best": None if self._best is None else self._best.to_json(),
+                 "anchor": None if self.anchor is None else anchor_record(self.anchor)}
         state = checkpoint_state(self.structure.spec, self.trainer, self.history,
                                  self.feed.train_ids, self.feed.val_ids, extra)
         try:
@@ -505,7 +493,7 @@ class SystemWorker:
         if last is not None and (last[0] == self.data.version
                                  or now - last[1] < self.settings.refine_every_s):
             return
-        samples = _candidates(tr, self._data_epoch)
+        samples = candidates(tr, self._data_epoch)
         if samples is None:
             return
         ds = self.data
@@ -520,10 +508,8 @@ class SystemWorker:
         with self._snap_lock:
             self._best = best
             self._best_error = None
-            if not self.monitor.ready:
-                proc = job.data.processing if job.data.processing is not None else Processing()
-                with self._monitor_lock:
-                    self.monitor.seed(best.theta(self.structure.free), proc)
+            proc = job.data.processing if job.data.processing is not None else Processing()
+            self.monitoring.seed(best.theta(self.structure.free), proc)
             self._refresh_snapshot()
 
     def _set_best_error(self, message: str) -> None:
@@ -531,7 +517,7 @@ class SystemWorker:
 
     def _current_best(self) -> Best | None:
         """The monitor's headline once it has one, else the first ``best``."""
-        return _best_from(self._monitor_view.get("best")) or self._best
+        return best_from(self.monitoring.view.get("best")) or self._best
 
     # ------------------------------------------------------------------ validation
     def _offer_validation(self) -> None:
@@ -575,7 +561,7 @@ class SystemWorker:
             system=self.name, state=self._state, epoch=self.epoch, error=self._error,
             structure=self.structure, trainer=tr, ensemble=ens,
             best=self._current_best(), first_best=self._best, best_error=self._best_error,
-            monitor_view=self._monitor_view, anchor=self.anchor, data=self.data,
+            monitor_view=self.monitoring.view, anchor=self.anchor, data=self.data,
             train_ids=tuple(self.feed.train_ids), val_ids=tuple(self.feed.val_ids),
             train_samples=self.feed.samples(self.feed.train_ids),
             validation_samples=self.feed.samples(self.feed.val_ids),
@@ -622,36 +608,14 @@ class SystemWorker:
 
     # ------------------------------------------------------------------ monitoring
     def _monitor_step(self) -> bool:
-        """Refiner thread: fit the oldest stored record not yet monitored; False when
-        there is none (or no ``best`` to start from yet)."""
-        if not self.monitor.ready or self._stop.is_set():
+        """Refiner thread: one per-record fit (``monitoring.py``); False when none is due."""
+        changes = self.monitoring.step(self.epoch, self._stop)
+        if changes is None:
             return False
-        try:
-            metas = self.store.recordings(self.name)
-        except UnknownSystem:
-            return False
-        pending = [m for m in metas if m.index > self.monitor.processed_index]
-        if not pending:
-            return False
-        meta = min(pending, key=lambda m: m.index)
-        try:
-            raw = self.store.read_raw(self.name, meta)
-            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt)
-        except (OSError, RecordingError) as exc:
-            self.monitor.processed_index = meta.index
-            self.monitor.failures[meta.id] = str(exc)
-            return True
-        with REFINE_LOCK, self._monitor_lock:
-            if self._stop.is_set():
-                return False
-            changes = self.monitor.process(meta.id, meta.index, rec,
-                                           getattr(meta, "received_at", None))
         for a in changes:
-            a.setdefault(f"epoch_{a['state']}", self.epoch)
-            a.setdefault("epoch", self.epoch)
             log.warning("%s: drift alarm %s: %s", self.name, a["state"], a["message"])
         with self._snap_lock:
-            self._update_monitor_view()
+            self.monitoring.update_view(self.epoch)
             self._refresh_snapshot()
         if changes and self.events is not None:
             try:
@@ -661,9 +625,6 @@ class SystemWorker:
         self._wake.set()  # the trainer may validate the new headline
         return True
 
-    def _update_monitor_view(self) -> None:
-        self._monitor_view = jsonable(self.monitor.view(self.epoch, self.settings.history_limit))
-
     def _counts(self) -> dict[str, int]:
         try:
             return self.store.counts(self.name)
@@ -671,68 +632,3 @@ class SystemWorker:
             return {"train": 0, "validation": 0}
 
 
-def _candidates(tr: Any, data_epoch: int) -> np.ndarray | None:
-    """Approach III's candidates: the harvested ensemble of the current data set, else the
-    per-epoch samples since convergence (the harvest's burn-in is not worth waiting for:
-    the refinement starts from the winner anyway); None while fewer than
-    ``REFINE_MIN_SAMPLES``."""
-    ens = tr.ensemble
-    samples = np.array(ens.samples, dtype=float, copy=True) if len(ens) else np.zeros((0, 0))
-    if len(ens):
-        current = samples[np.asarray(ens.epochs) >= data_epoch]
-        if len(current) >= REFINE_MIN_SAMPLES:
-            return current
-    conv_at = getattr(getattr(tr, "monitor", None), "converged_at", None)
-    hist = getattr(tr, "history", {}).get("theta", [])
-    if conv_at is not None and hist:
-        first = max(int(conv_at), data_epoch)
-        k = len(hist) - (int(tr.epoch) - first)  # history may be trimmed at its start
-        since = hist[max(0, k):]
-        if len(since) >= REFINE_MIN_SAMPLES:
-            return np.array(since, dtype=float)
-    return samples if len(samples) >= REFINE_MIN_SAMPLES else None
-
-
-def _best_from(d: Any) -> Best | None:
-    """A :class:`Best` from its JSON (a checkpoint, the monitor's view)."""
-    if not d or not d.get("parameters"):
-        return None
-    params = {p: ParameterValue(float(v["value"]), v.get("std"),
-                                None if not v.get("ci95") else (v["ci95"][0], v["ci95"][1]),
-                                v.get("n"))
-              for p, v in d["parameters"].items() if v.get("value") is not None}
-    src = "records" if d.get("source") == "records" else "recommend_best"
-    return Best(params, int(d.get("epoch") or 0), int(d.get("n_records") or 0),
-                float(d.get("time") or time.time()), tuple(d.get("records") or ()), src,
-                str(d.get("method") or ""), output_error=d.get("output_error"),
-                refined=d.get("refined"), note=d.get("note"),
-                approach_III=d.get("approach_III"), n_candidates=d.get("n_candidates"),
-                seconds=d.get("seconds"), modal=d.get("modal"))
-
-
-def stop_workers(workers: list[Any], timeout: float) -> list[str]:
-    """Ask every worker to stop, then wait at most ``timeout`` in all."""
-    for w in workers:
-        w.request_stop()
-    deadline = time.monotonic() + timeout
-    for w in workers:
-        w.stop(timeout=max(0.0, deadline - time.monotonic()))
-    return [w.name for w in workers if w.alive]
-
-
-def base_snapshot(name: str, state: str, epoch: int = 0,
-                  error: str | None = None) -> dict[str, Any]:
-    """The keys every snapshot has, before any estimate exists."""
-    return {"system": name, "state": state, "epoch": epoch, "converged": False,
-            "converged_at": None, "parameters": {}, "estimate_source": None,
-            "discriminator": {}, "error": error, "time": time.time(), "provisional": True}
-
-
-def default_trainer(structure: Structure, settings: Settings) -> Any:
-    """SivaTrainer with the preset and seed of the settings."""
-    from siva_core import SivaSettings, SivaTrainer
-
-    preset = getattr(SivaSettings, settings.preset, None)
-    if preset is None:
-        raise ValueError(f"unknown SIVA preset {settings.preset!r} (fast, paper)")
-    return SivaTrainer(structure, preset(seed=settings.seed))
