@@ -162,9 +162,16 @@ class SivaClient:
             out.append({"path": str(path), "role": r, **ack})
         return out
 
-    def delete(self, name: str) -> dict[str, Any]:
-        """DELETE a system with its recordings, estimate and history."""
-        return self._json("DELETE", _sys(name))
+    def delete(self, name: str, *, archive_logs: bool = False) -> dict[str, Any]:
+        """DELETE a system with its recordings, estimate and history, and its MCAP event
+        logs: deleted, or moved to the server's ``<data>/archive/logs/`` with
+        ``archive_logs``.  The answer's ``logs`` says which (``action``, ``files``)."""
+        return self._json("DELETE", _sys(name),
+                          params={"logs": "archive" if archive_logs else "delete"})
+
+    def export(self, name: str, what: str) -> bytes:
+        """A CSV export: ``estimates`` | ``records`` | ``drift`` | ``alarms`` (the bytes)."""
+        return self._request("GET", f"{_sys(name)}/export/{quote(what, safe='')}.csv").content
 
     def drift_reset(self, name: str) -> dict[str, Any]:
         """Forget the drift reference and alarms (e.g. after a repair); history is kept."""

@@ -14,7 +14,7 @@ import math
 import time
 from typing import Any, Iterator, Mapping
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily
@@ -207,7 +207,9 @@ def install(app: FastAPI, service: Any) -> None:
     registry.register(SystemsCollector(service))
     app.state.metrics_registry = registry
 
-    @app.get("/metrics", include_in_schema=False)
+    from .routes import require_read_token  # reads behind the token when asked (issue 19)
+
+    @app.get("/metrics", include_in_schema=False, dependencies=[Depends(require_read_token)])
     async def metrics(request: Request) -> Response:
         return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 

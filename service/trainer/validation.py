@@ -76,6 +76,9 @@ def validation_view(headline: Verdict | None, ensemble: Verdict | None,
         "agree": (None if headline is None or ensemble is None
                   else headline.verdict == ensemble.verdict),
         "status": "pending" if main is None else "done",
+        # the names of ``siva identify``'s JSON, for readers of both
+        "accepted": None if main is None else main.verdict == "accepted",
+        "statistic": None if main is None else main.T,
         "meaning": MEANING,
         "discriminator": {"what": "the discriminator's own numbers: not a validation test",
                           **{k: disc.get(k) for k in ("loss_d", "ln4_distance", "auc")

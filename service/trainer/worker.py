@@ -385,6 +385,12 @@ class SystemWorker:
         extra = {"monitor": self.monitoring.state_dict(),
                  "best": None if self._best is None else self._best.to_json(),
                  "anchor": None if self.anchor is None else anchor_record(self.anchor)}
+        position = getattr(self.events, "position", None)
+        if position is not None:  # which log explains this state (service/reconcile.py)
+            try:
+                extra["log"] = position(self.name)
+            except Exception:  # noqa: BLE001 - an audit aid, never a reason not to checkpoint
+                pass
         state = checkpoint_state(self.structure.spec, self.trainer, self.history,
                                  self.feed.train_ids, self.feed.val_ids, extra)
         try:

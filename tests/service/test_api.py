@@ -168,9 +168,12 @@ def test_delete_system(client, server, linear, oscillator):
     assert client.post("/v1/systems/api-del/recordings?role=train", content=oscillator(),
                        headers={"content-type": "text/csv"}).status_code == 202
     r = client.delete("/v1/systems/api-del")
-    assert r.status_code == 200 and r.json() == {"deleted": "api-del"}
+    body = r.json()
+    assert r.status_code == 200 and body["deleted"] == "api-del" and body["recordings"] == 1
+    assert body["logs"]["action"] == "deleted" and body["logs"]["files"] >= 1, body
     assert client.get("/v1/systems/api-del/estimate").status_code == 404
     assert not (server.data_dir / "systems" / "api-del").exists()
+    assert not (server.data_dir / "logs" / "api-del").exists()  # no MCAP log left behind
     assert client.delete("/v1/systems/api-del").status_code == 404
     # the name is free again, with another spec
     assert client.put("/v1/systems/api-del", json=dict(linear, mass={"x": 1.0})).status_code == 201

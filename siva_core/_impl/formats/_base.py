@@ -41,12 +41,38 @@ class ReadLimits:
     max_members: int = 256                      # NPZ members / MAT variables / TDMS channels
     max_json_depth: int = 16                    # nesting of [ and {
     max_number_chars: int = 64                  # digits of one JSON number
+    #: numbers over the columns read (all formats): 8 Mi float64 = 64 MiB, checked before
+    #: the arrays are allocated
+    max_values: int = 8 * 2**20
+    #: compressed content (NPZ, MCAP, MAT) may decompress to this many times the file, or
+    #: to ``expansion_floor`` bytes, whichever is more (and never above
+    #: ``max_decompressed_bytes``): measured data compresses 1-4x, a bomb 1000x
+    max_expansion: float = 16.0
+    expansion_floor: int = 4 * 2**20
 
     def check_total(self, what: str, total: int, name: str) -> None:
         if total > self.max_decompressed_bytes:
             raise RecordingTooLarge(
                 f"{name}: {what} would decompress to {total / 2**20:.1f} MiB, above the limit "
                 f"of {self.max_decompressed_bytes / 2**20:.0f} MiB")
+
+    def check_expansion(self, what: str, total: int, body_bytes: int, name: str) -> None:
+        """Decompressed ``total`` bytes from a ``body_bytes`` file, checked before inflating."""
+        self.check_total(what, total, name)
+        allowed = max(self.expansion_floor, int(self.max_expansion * body_bytes))
+        if total > allowed:
+            raise RecordingTooLarge(
+                f"{name}: {what} would decompress to {total / 2**20:.1f} MiB from a "
+                f"{body_bytes / 2**20:.2f} MiB file ({total / max(body_bytes, 1):.0f} x); at "
+                f"most {self.max_expansion:g} x (or {self.expansion_floor / 2**20:.0f} MiB) "
+                "is accepted: a compression bomb, not a recording")
+
+    def check_values(self, count: int, name: str) -> None:
+        """At most ``max_values`` numbers over the columns, checked before allocating."""
+        if count > self.max_values:
+            raise RecordingTooLarge(f"{name}: {count} values in the columns read, at most "
+                                    f"{self.max_values} ({self.max_values * 8 / 2**20:.0f} "
+                                    "MiB as float64)")
 
     def check_members(self, what: str, count: int, name: str) -> None:
         if count > self.max_members:
