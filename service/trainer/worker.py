@@ -455,8 +455,10 @@ class SystemWorker:
         anchor, self._pending_anchor = self._pending_anchor, None
         if anchor is None or self.trainer is None:
             return
-        if self.data is not None and anchor.data.version < self._anchor_job_version:
-            return  # superseded: a newer re-anchor is on its way
+        if self.anchor is not None and anchor.data.version <= self.anchor.data.version:
+            return  # not newer than the one in use
+        # (an anchor on a data set that has since grown is still applied: it is newer than
+        # the one in use, and the re-anchor on the newest records is already queued)
         self._log_anchor(anchor)
         apply_anchor(self.trainer, anchor)
         self.anchor = anchor
