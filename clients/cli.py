@@ -57,12 +57,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("paths", nargs="+", metavar="PATH")
     c.add_argument("--role", choices=["train", "validation", "val"],
                    help="default: the server's split rule")
+    _add_channel_options(c)
 
     c = sub.add_parser("upload-folder", help="POST every recording file of a folder")
     c.add_argument("name")
     c.add_argument("folder")
     c.add_argument("--role", choices=["train", "validation", "val"],
                    help="default: from train/ and val/ subfolders or 'val*' names")
+    _add_channel_options(c)
 
     c = sub.add_parser("recordings", help="list the stored recordings")
     c.add_argument("name")
@@ -111,6 +113,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 EXPORTS = ("estimates", "records", "drift", "alarms")
+
+
+def _add_channel_options(c: argparse.ArgumentParser) -> None:
+    """``--map``/``--unit`` as ``siva identify`` has them, sent as the upload's query."""
+    c.add_argument("--map", action="append", default=[], metavar="SRC=DST",
+                   help="read the file's channel SRC as DST, e.g. --map 'Accel LO=acc_LO' "
+                        "(repeatable)")
+    c.add_argument("--unit", action="append", default=[], metavar="COL=UNIT",
+                   help="the unit a channel was recorded in, e.g. --unit acc_LO=g (repeatable)")
 
 
 def _json_flag(c: argparse.ArgumentParser) -> None:
@@ -207,11 +218,14 @@ def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
             ack = client.register(args.name, args.spec)
             show(ack, lambda: render.render_registered(args.name, ack))
         elif cmd == "upload":
-            acks = [{"path": p, **client.upload(args.name, p, role=args.role)} for p in args.paths]
+            acks = [{"path": p, **client.upload(args.name, p, role=args.role,
+                                                channel_map=args.map, units=args.unit)}
+                    for p in args.paths]
             show(acks if len(acks) > 1 else acks[0], lambda: render.render_uploads(acks))
         elif cmd == "upload-folder":
             acks = client.upload_folder(args.name, args.folder, role=args.role,
-                                        warn=lambda m: print(f"warning: {m}", file=sys.stderr))
+                                        warn=lambda m: print(f"warning: {m}", file=sys.stderr),
+                                        channel_map=args.map, units=args.unit)
             show(acks, lambda: render.render_uploads(acks))
         elif cmd == "recordings":
             body = client.recordings(args.name)

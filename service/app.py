@@ -288,11 +288,17 @@ class SivaService:
         return {"recordings": n_recordings, "logs": logs}
 
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
-                      filename: str) -> dict[str, Any]:
+                      filename: str, channel_map: dict[str, str] | None = None,
+                      units: dict[str, str] | None = None) -> dict[str, Any]:
         """Validate, store durably, log, notify the worker; runs in a worker thread."""
         w = self.worker(name)
         try:
-            info = parse_upload(w.structure, raw, fmt, filename)
+            try:
+                rates = {m.filename or m.id: m.fs for m in self.store.recordings(name)}
+            except UnknownSystem as exc:
+                raise ApiError(404, str(exc)) from None
+            info = parse_upload(w.structure, raw, fmt, filename, channel_map=channel_map,
+                                units=units, existing_rates=rates, theta=_estimate_theta(w))
             check_sampling_rate(float(info.get("fs", 0.0)), filename, self.settings)
         except RecordingTooLarge as exc:
             raise ApiError(413, str(exc)) from None
@@ -305,7 +311,7 @@ class SivaService:
             # the log entry is durable before the store commits and before the 202: every
             # acknowledged recording is in the log (a failure here aborts the upload)
             self.events.log_recording(name, meta.id, meta.role, raw, fmt, w.epoch,
-                                      name=filename)
+                                      name=filename, channel_map=channel_map, units=units)
 
         try:
             meta, duplicate = self.store.add_recording(name, raw, role=role, fmt=fmt,
@@ -480,3 +486,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 __all__ = ["create_app", "SivaService", "ApiError", "UploadTooLarge", "BodyLimitMiddleware",
            "UnknownRecording"]
+
+
+def _estimate_theta(w: Any) -> Any:
+    """The system's converged estimate as a parameter vector (its modes bound the sampling
+    rate of new records), or None before convergence or when a value is missing."""
+    import numpy as np
+
+    try:
+        snap = w.snapshot() or {}
+    except Exception:  # noqa: BLE001 - a trainer without a snapshot yet
+        return None
+    if not snap.get("converged"):
+        return None
+    params = snap.get("parameters") or {}
+    vals = [(params.get(p) or {}).get("mean") for p in w.structure.free]
+    if not vals or any(v is None for v in vals):
+        return None
+    theta = np.array(vals, dtype=float)
+    return theta if np.all(np.isfinite(theta)) else None

@@ -86,7 +86,8 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
 
     def compute() -> dict[str, Any]:
         raw = svc.store.read_raw(name, meta)
-        rec = Recording.read(raw, w.structure.dofs, name=meta.filename or meta.id, fmt=meta.fmt)
+        rec = Recording.read(raw, w.structure.dofs, name=meta.filename or meta.id, fmt=meta.fmt,
+                             **meta.read_options(w.structure))
         proc = getattr(w, "_proc", None)  # the chain the trainer uses, when it has one
         try:
             series = compute_latest(w.structure, rec, proc, theta)

@@ -102,6 +102,9 @@ class RecordingEvent(BaseModel):
     sha256: str
     data: str = Field(description="the uploaded bytes, base64 (RFC 4648)")
     wall_time: float
+    channel_map: dict[str, str] | None = Field(
+        None, description="the upload's ?map= channel renames (stored name -> column)")
+    units: dict[str, str] | None = Field(None, description="the upload's ?unit= declarations")
 
     def payload(self) -> bytes:
         """The uploaded bytes; checked against the logged hash so corruption is loud."""
@@ -349,12 +352,16 @@ class EventLog:
                     sl.abandon()
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
-                      epoch: int, name: str | None = None) -> None:
+                      epoch: int, name: str | None = None,
+                      channel_map: Mapping[str, str] | None = None,
+                      units: Mapping[str, str] | None = None) -> None:
         raw = bytes(raw_bytes)
         ev = RecordingEvent(system=system, id=str(rec_id), role=_role(role), format=fmt,
                             epoch=int(epoch), name=name, size=len(raw),
                             sha256=hashlib.sha256(raw).hexdigest(),
-                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time())
+                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time(),
+                            channel_map=dict(channel_map) if channel_map else None,
+                            units=dict(units) if units else None)
         self._write(system, TOPIC_RECORDING, ev)
 
     def log_dataset(self, system: str, epoch: int, train_ids: Sequence[str],

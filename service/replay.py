@@ -287,8 +287,9 @@ class _Replayer:
                                   "log(s): pass the system's earlier logs too (its log folder)")
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                self._recs[rid] = Recording.read(ev.payload(), self.structure.dofs, name=rid,
-                                                 fmt=ev.format)
+                self._recs[rid] = Recording.read(
+                    ev.payload(), self.structure.dofs, name=rid, fmt=ev.format,
+                    **self.structure.read_options(ev.channel_map, ev.units))
         return self._recs[rid]
 
     def states(self, ds: _DataSet) -> tuple[list[Any], list[Any]]:

@@ -15,7 +15,7 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from siva_core import media_types, resolve_format
+from siva_core import media_types, parse_pairs, resolve_format
 
 from .errors import ApiError, UploadTooLarge
 from .limits import LimitError, parse_spec_body
@@ -232,14 +232,26 @@ async def post_recording(
                                                  "Content-Type or file name"),
     filename: str | None = Query(None, alias="name",
                                  description="a name for the record, used in messages"),
+    map_: list[str] | None = Query(None, alias="map",
+                                   description="SRC=DST, repeatable: read the file's channel "
+                                               "SRC as column DST (e.g. 'Accel LO=acc_LO'); "
+                                               "over the spec's [channels] map"),
+    unit: list[str] | None = Query(None, description="COL=UNIT, repeatable: the unit a column "
+                                                     "was recorded in (e.g. acc_LO=g), "
+                                                     "converted to SI"),
 ) -> Response:
     """Upload one recording; 202 only once it is durably stored (temp, fsync, rename)."""
     svc = service_of(request)
     svc.worker(name)  # 404 before reading a body for nothing
     role = _role(role)
     fmt = _format(format) if format else None
+    try:
+        cmap, units = parse_pairs(map_, "map"), parse_pairs(unit, "unit")
+    except ValueError as exc:
+        raise ApiError(422, f"query parameter {exc}") from None
     async with upload_slot(request):  # the body stays in the socket until there is room
-        return await _receive_recording(svc, name, request, role, fmt, filename)
+        return await _receive_recording(svc, name, request, role, fmt, filename,
+                                        cmap or None, units or None)
 
 
 class UploadSlots:
@@ -304,7 +316,9 @@ async def upload_slot(request: Request) -> AsyncIterator[None]:
 
 
 async def _receive_recording(svc: Any, name: str, request: Request, role: str | None,
-                             fmt: str | None, filename: str | None) -> Response:
+                             fmt: str | None, filename: str | None,
+                             cmap: dict[str, str] | None = None,
+                             units: dict[str, str] | None = None) -> Response:
     media = _media_type(request)
     if media == "multipart/form-data":
         raw, part_name, part_type, form_role = await _multipart(request)
@@ -321,7 +335,7 @@ async def _receive_recording(svc: Any, name: str, request: Request, role: str | 
     if not raw:
         raise ApiError(422, f"{filename}: empty body, expected a recording")
     ack = await run_in_threadpool(svc.add_recording, name, raw, role=role, fmt=fmt,
-                                  filename=filename)
+                                  filename=filename, channel_map=cmap, units=units)
     return JSONResponse(ack, status_code=202)
 
 

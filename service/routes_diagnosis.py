@@ -124,7 +124,8 @@ def _run(job: DiagnosisJob, svc: Any, name: str) -> None:
         def read(rid: str) -> Recording:
             m = metas[rid]
             return Recording.read(svc.store.read_raw(name, m), structure.dofs,
-                                  name=m.filename or rid, fmt=m.fmt)
+                                  name=m.filename or rid, fmt=m.fmt,
+                                  **m.read_options(structure))
 
         check()
         train = [read(r) for r in job.train]

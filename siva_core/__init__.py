@@ -9,8 +9,14 @@ Model and data
     :func:`register_element`, :data:`ELEMENT_KINDS` (the registry);
     :class:`Recording` (CSV / JSON / NPZ / MCAP / LVM / UFF58 / TDMS / MAT),
     :class:`RecordingError`, :class:`RecordingTooLarge`, :func:`register_format`,
-    :func:`sniff_format`, :func:`read_mcap_recording`, :func:`write_mcap_recording`,
+    :func:`sniff_format`, :func:`parse_pairs` (``--map``/``--unit`` text),
+    :func:`read_mcap_recording`, :func:`write_mcap_recording`,
     :func:`mcap_bytes`.
+Checks before training
+    :func:`preflight` (records of one fit) -> :class:`Preflight`, raising
+    :class:`PreflightError` (a list of :class:`Problem`); :func:`check_recording` (one
+    record: force, sampling vs the modes, clipping, length), :func:`check_rates` (mixed
+    sampling rates), :func:`resample_to`, :func:`mode_frequencies`.
 Processing
     :class:`Processing` (the chain) -> :class:`States`; :func:`simulated_recording`,
     :func:`central_difference`; :func:`detect_impulse` / :class:`Impulse` (the one rule
@@ -64,6 +70,9 @@ _export("processing", "Processing", "States", "simulated_recording", "central_di
 _export("impulse", "detect_impulse", "Impulse")
 _export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup")
 _export("excitation", "initial_state_and_force", "gate_force")
+_export("inputs", "parse_pairs")
+_export("preflight", "preflight", "check_recording", "check_rates", "resample_to",
+        "mode_frequencies", "Preflight", "PreflightError", "Problem")
 _export("siva", "Siva", "Identification", "choose_processing", "recommend_best")
 _export("training", "SivaSettings", "SivaTrainer")
 _export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
@@ -113,6 +122,9 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.formats import REGISTRY as RECORDING_FORMATS
     from ._impl.formats import (MCAP_MAGIC, ReadLimits, RecordingTooLarge, media_types,
                                 register_format, resolve_format, sniff_format)
+    from ._impl.inputs import parse_pairs
+    from ._impl.preflight import (Preflight, PreflightError, Problem, check_rates,
+                                  check_recording, mode_frequencies, preflight, resample_to)
     from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                output_error, refine)

@@ -29,6 +29,14 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_parts.py": {"siva_core._impl.diagnose": "the diagnosis' parts",
                                      "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
+    "tests/test_physical_bounds.py": {
+        "siva_core._impl.assessment": "the verdict on a stub result",
+        "siva_core._impl.ensemble": "dropping a diverged epoch",
+        "siva_core._impl.siva": "moving candidates inside the bounds"},
+    "tests/test_diagnose_report_text.py": {
+        "siva_core._impl.diagnose.report": "the report's sentences",
+        "siva_core._impl.diagnose.signatures": "the damping reading",
+        "siva_core._impl.diagnose.where": "the amplitude trend"},
 }
 
 

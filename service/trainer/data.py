@@ -67,7 +67,8 @@ class DataFeed:
             meta = by_id[rid]
             try:
                 raw = self.store.read_raw(self.name, meta)
-                self.recs[rid] = Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt)
+                self.recs[rid] = Recording.read(raw, self.structure.dofs, name=rid, fmt=meta.fmt,
+                                                **meta.read_options(self.structure))
             except (OSError, RecordingError) as exc:
                 log.error("%s: recording %s unusable: %s", self.name, rid, exc)
                 self.rejected[rid] = str(exc)

@@ -70,7 +70,8 @@ class Monitoring:
         meta = min(pending, key=lambda m: m.index)
         try:
             raw = self.store.read_raw(self.name, meta)
-            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt)
+            rec = Recording.read(raw, self.structure.dofs, name=meta.id, fmt=meta.fmt,
+                                 **meta.read_options(self.structure))
         except (OSError, RecordingError) as exc:
             self.monitor.processed_index = meta.index
             self.monitor.failures[meta.id] = str(exc)

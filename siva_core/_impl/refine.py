@@ -382,6 +382,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            interp: str = "linear", omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
+           bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
@@ -410,6 +411,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``max_nfev`` bounds the cost evaluations of the final (full) stage; earlier stages get
     ``max(5, max_nfev // 4)`` each.
 
+    ``bounds``: (lower, upper) per free parameter instead of the spec's (e.g.
+    :meth:`Structure.physical_bounds`).
     ``fit_force_scale``: also fit one force multiplier per record (a nuisance parameter,
     log-scaled from 1).  An impact's response depends so strongly on its impulse that 0.2 %
     force-sensor noise in the pulse (0.1 % impulse) moves a hardening record's late response
@@ -450,8 +453,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     for k, p in enumerate(free):
         if theta0[k] == 0 and structure.parameters[p].scale:
             scale[k] = structure.parameters[p].scale
-    lo_th = np.array([_bound(structure.parameters[p].lower, -np.inf) for p in free])
-    hi_th = np.array([_bound(structure.parameters[p].upper, np.inf) for p in free])
+    if bounds is not None:  # e.g. Structure.physical_bounds(): no negative damping
+        lo_th, hi_th = (np.asarray(b, dtype=float).ravel() for b in bounds)
+    else:
+        lo_th = np.array([_bound(structure.parameters[p].lower, -np.inf) for p in free])
+        hi_th = np.array([_bound(structure.parameters[p].upper, np.inf) for p in free])
     lower, upper = _x_bounds(theta0, scale, is_log, lo_th, hi_th)
     n_dof = structure.n_dof
     if fit_initial == "auto":

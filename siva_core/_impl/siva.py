@@ -115,7 +115,15 @@ class Identification:
                 "timing_s": self.timing_s, "baselines": self.baselines,
                 "training": {"epochs": self.epochs, "converged_epoch": self.converged_epoch,
                              "n_ensemble": int(len(self.samples_II))},
-                "processing": _processing_json(self.processing), "notes": self.notes}
+                "processing": _processing_json(self.processing), "notes": self.notes,
+                "assessment": self.assessment().to_json()}
+
+    def assessment(self, **commands: str) -> Any:
+        """The verdict (accepted / rejected, unphysical or undetermined values, what to try
+        next): :func:`siva_core._impl.assessment.assess`."""
+        from .assessment import assess
+
+        return assess(self, **commands)
 
 
 def _stats(d: dict) -> dict:
@@ -172,6 +180,9 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         raise ValueError("recommend_best needs at least one candidate and one training record")
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
+    lo, hi = st.physical_bounds()
+    moved = physical_candidates(cand, lo, hi, names)
+    cand = moved.candidates
     mse = displacement_mse(st, cand, train, processing)
     theta_III = cand[int(np.nanargmin(mse))].copy() if np.isfinite(mse).any() else cand[-1].copy()
     timing["approach_III"] = time.perf_counter() - t0
@@ -183,7 +194,8 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         # parameter so that sensor error is not absorbed by the structure's parameters.
         gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
         forced = all(r.has_force(st.dofs) for r in train)
-        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains)
+        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains,
+                      bounds=(lo, hi))
         c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
         if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
             # Gauss-Newton std, inflated for the correlation of filtered residuals
@@ -197,8 +209,53 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
             oe = float(c_ref[0])
             note = f"refinement did not improve on Approach III ({res.message})"
     timing["refine"] = time.perf_counter() - t0
+    outside = [n for n, v, a, b in zip(names, best, lo, hi) if not a <= v <= b]
+    if outside:  # cannot happen through the bounded refinement; a last guard all the same
+        best = np.clip(best, lo, hi)
+        note = ((note + "; ") if note else "") + (
+            f"best: {', '.join(outside)} clipped to the physical bounds")
+    if moved.names:
+        note = ((note + "; ") if note else "") + (
+            f"Approach III candidates with {', '.join(moved.names)} outside the physical "
+            f"bounds (e.g. negative damping) were moved inside before choosing")
     return Recommendation(np.asarray(best, dtype=float), best_std, note, theta_III, oe, refined,
                           res, timing)
+
+
+@dataclass
+class _Moved:
+    candidates: np.ndarray
+    names: list[str]
+
+
+def physical_candidates(cand: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        names: Sequence[str] | None = None) -> _Moved:
+    """Candidates with every value strictly inside the physical bounds
+    (:meth:`Structure.physical_bounds`): a value below ``lo`` is reflected above it (a
+    damping of -0.9 becomes 0.9: same magnitude, physical sign), one on the bound is moved
+    1e-3 of the parameter's typical size inside (the refinement's log scale cannot start at
+    0).  Returns the moved candidates and the indices (or ``names``) of the parameters that
+    had to move."""
+    cand = np.array(cand, dtype=float, copy=True)
+    typical = np.nanmedian(np.abs(cand), axis=0)
+    typical = np.where(np.isfinite(typical) & (typical > 0), typical, 1.0)
+    moved: list[int] = []
+    for k in range(cand.shape[1]):
+        col = cand[:, k]
+        bad = ~((col > lo[k]) & (col < hi[k])) & np.isfinite(col)
+        if not bad.any():
+            continue
+        moved.append(k)
+        gap = 1e-3 * typical[k]
+        below = col <= lo[k]
+        col[below] = lo[k] + np.maximum(lo[k] - col[below], gap)
+        above = col >= hi[k]
+        col[above] = hi[k] - np.maximum(col[above] - hi[k], gap)
+        if np.isfinite(lo[k]) and np.isfinite(hi[k]):
+            out = ~((col > lo[k]) & (col < hi[k]))
+            col[out] = 0.5 * (lo[k] + hi[k])
+    labels = [names[k] for k in moved] if names is not None else [str(k) for k in moved]
+    return _Moved(cand, labels)
 
 
 class Siva:
@@ -398,8 +455,21 @@ class Siva:
         limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
                             settings.max_epochs // 2) + settings.ensemble_epochs
         eta = Eta(limit, start=start)  # an upper bound again
+        import copy
+
+        good = copy.deepcopy(trainer.generator.state_dict())
         while trainer.epoch < limit:
             log = trainer.run_epoch()
+            if not (np.all(np.isfinite(log.theta)) and np.isfinite(log.loss_mse)):
+                # the linearised output error is flat along a direction the records do not
+                # determine; the generator ran off along it.  Keep the last finite state.
+                trainer.generator.load_state_dict(good)
+                trainer.ensemble.drop_nonfinite()
+                notes.append(f"output-error phase stopped at epoch {log.epoch}: the generator "
+                             "left the finite range (the records do not determine every "
+                             "parameter); Approach I/II are from the last finite epoch")
+                break
+            good = copy.deepcopy(trainer.generator.state_dict())
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
                 self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
@@ -421,6 +491,8 @@ class Siva:
         # (Approach II's mean itself is not compared: its force scales were profiled out,
         # which plain output error does not do)
         recs = [*train, *val]
+        if not np.all(np.isfinite(mean_II)):
+            return None
         rec = recommend_best(self.structure, mean_II[None], train, proc)
         if not rec.refined:
             return None

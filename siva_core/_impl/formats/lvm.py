@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._base import (ColumnSelector, Columns, Format, ReadLimits, RecordingError, RecordLike,
-                    SI_UNIT, parse_number, register_format, split_unit)
+                    SI_UNIT, exact_step, parse_number, printed_half_unit, register_format,
+                    split_unit)
 from ._lines import check_text, count_lines, end_of_content, line_blocks, next_line
 
 MAGIC = "LabVIEW Measurement"
@@ -84,9 +85,7 @@ def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
         if target is None or target in keep.values():
             continue
         unit = units[chan_of[c]] if chan_of[c] < len(units) else ""
-        if unit and not select.mapped(n) and split_unit(target)[1] is None:
-            target = f"{target} [{unit}]"
-        keep[c] = target
+        keep[c] = select.labelled(n, target, unit)
     time_col = None
     first = min((c for c in keep if split_unit(keep[c])[0] != "time"), default=None)
     if x_cols and not any(split_unit(t)[0] == "time" for t in keep.values()):
@@ -120,7 +119,10 @@ def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
         if ch >= len(dx) or ch >= len(x0) or not dx[ch] > 0:
             raise RecordingError(f"{name}: no X column and no Delta_X for channel "
                                  f"{names[first]!r}")
-        data["time"] = x0[ch] + dx[ch] * np.arange(len(data_lines))
+        # Delta_X is printed with a few decimals (LabVIEW: 6): 0.000488 is 1/2048 s, not
+        # 1/2049.18 s; the step is the sampling rate's, within the printed precision
+        step = exact_step(dx[ch], printed_half_unit(seg["Delta_X"][ch]))
+        data["time"] = x0[ch] + step * np.arange(len(data_lines))
     return Columns(data, row_offset=first_row)
 
 

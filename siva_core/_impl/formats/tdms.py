@@ -38,8 +38,7 @@ def read_tdms(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits)
             if target is None:
                 continue
             unit = str(ch.properties.get("unit_string", "") or "").strip()
-            if unit and not select.mapped(key) and split_unit(target)[1] is None:
-                target = f"{target} [{unit}]"
+            target = select.labelled(key, target, unit)
             if split_unit(target)[0] in {split_unit(t)[0] for t in kept}:
                 raise RecordingError(f"{name}: channel {ch.name!r} appears in more than one "
                                      "group; name one as 'group/channel' in the channel map")
