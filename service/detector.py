@@ -53,6 +53,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .forming_baseline import YOUNG_MIN_SEGMENT, YOUNG_Z, young_change
+
 #: |z| below which a value counts as "back to baseline" when clearing a confirmed alarm
 CLEAR_Z = 2.0
 #: chi-square(1) 95 % quantile: change-point positions within this much cost of the best
@@ -139,6 +141,9 @@ class ChangeDetector:
         if self.baseline is None:
             for q in self.quantities:
                 self.base[q].append([self.values[q][-1], self.errors[q][-1]])
+            young = self._young_test()
+            if young:
+                return young
             if self.seen >= self.settings.baseline_records:
                 self.baseline = self._fit_baseline()
                 for q in self.quantities:  # baseline values standardised for change points
@@ -156,6 +161,33 @@ class ChangeDetector:
             c[1] = max(0.0, c[1] - z - self.settings.k)
             changed.extend(self._update_alarm(q, n - 1))
         return changed
+
+    # ------------------------------------------------------------------ forming baseline
+    def _young_test(self) -> list[dict[str, Any]]:
+        """A change *inside* the forming baseline (``forming_baseline.py``): alarms, and the
+        baseline restarts with the records after the change."""
+        m = len(self.base[self.quantities[0]]) if self.quantities else 0
+        found = young_change(self.base, self.records[len(self.records) - m:], self.kinds,
+                             self.settings.min_rel_scatter, len(self.alarms) + 1)
+        if found is None:
+            return []
+        t, alarms = found
+        self.alarms.extend(alarms)
+        for q in self.quantities:
+            self.base[q] = self.base[q][t:]
+        self.seen = m - t
+        return alarms
+
+    def young_report(self) -> dict[str, Any]:
+        """What the forming-baseline test can see now (for the drift status)."""
+        m = len(self.base[self.quantities[0]]) if self.quantities else 0
+        s = self.settings
+        detectable = None
+        if m >= YOUNG_MIN_SEGMENT + 1:
+            nb = max(YOUNG_MIN_SEGMENT, m + 1 - YOUNG_MIN_SEGMENT)
+            detectable = YOUNG_Z * s.min_rel_scatter * math.sqrt(1 / nb + 1 / YOUNG_MIN_SEGMENT)
+        return {"active": self.baseline is None, "records": m, "threshold_z": YOUNG_Z,
+                "min_segment": YOUNG_MIN_SEGMENT, "min_detectable_rel": detectable}
 
     def _extend_baseline(self) -> None:
         """Self-starting reference: the record ``baseline_guard`` records back joins the
@@ -233,6 +265,8 @@ class ChangeDetector:
     # ------------------------------------------------------------------ alarms
     def _active(self, q: str) -> dict[str, Any] | None:
         for a in reversed(self.alarms):
+            if a.get("young"):
+                continue  # raised inside the baseline: stays until a reset (not a CUSUM)
             if a["parameter"] == q and a["state"] in ("raised", "confirmed"):
                 return a
         return None
@@ -372,6 +406,7 @@ class ChangeDetector:
                          "false_alarms_per_1000_records_nominal":
                              1000.0 / self.settings.arl0_records},
                 "reference": self.baseline,
+                "young_baseline": self.young_report(),
                 "n_records": len(self.records),
                 "alarms": [dict(a) for a in self.alarms],
                 "active_alarms": [a["parameter"] for a in self.alarms if a["active"]]}

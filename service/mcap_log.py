@@ -12,6 +12,9 @@ Layout: ``<data>/logs/<system>/<UTC start time>-<pid>.mcap``.  Topics (message e
   exactly as received (base64), their format, role, and the training epoch at arrival
 - ``/siva/dataset``    :class:`DatasetEvent` - (optional) the moment the trainer's data set
   changed: the epoch and the recording ids in use; replay prefers it over arrival epochs
+- ``/siva/anchor``     :class:`AnchorEvent` - the trainer entered (or re-anchored) the
+  output-error phase after ``epoch`` epochs: the anchor theta, the records and chain it was
+  linearised on, the bootstrap replicate count and seed (replay recomputes it exactly)
 - ``/siva/snapshot``   :class:`SnapshotEvent` - an estimate as served by GET .../estimate
 - ``/siva/repair``     :class:`RepairEvent` - start-up found the log behind the store and
   repaired it (service/reconcile.py): what was missing, and - when the log can no longer
@@ -67,6 +70,7 @@ TOPIC_SPEC = "/siva/spec"
 TOPIC_RECORDING = "/siva/recording"
 TOPIC_DATASET = "/siva/dataset"
 TOPIC_SNAPSHOT = "/siva/snapshot"
+TOPIC_ANCHOR = "/siva/anchor"
 TOPIC_REPAIR = "/siva/repair"
 PLATFORM_METADATA = "siva.platform"
 MAGIC = MCAP_MAGIC
@@ -119,6 +123,22 @@ class DatasetEvent(BaseModel):
     validation: list[str]
     processing: dict[str, Any] | None = Field(
         None, description="the processing chain's settings (siva_core Processing fields)")
+    wall_time: float
+
+
+class AnchorEvent(BaseModel):
+    """The output-error phase was anchored (linearised) before training epoch ``epoch + 1``."""
+
+    system: str
+    epoch: int = Field(ge=0, description="epochs completed when the anchor took effect")
+    theta: list[float] = Field(description="anchor parameters, in the model's free order")
+    train: list[str] = Field(description="records the output error was linearised on")
+    validation: list[str] = Field(description="records the discriminator judges")
+    processing: dict[str, Any] | None = None
+    source: str = Field(description="best (the first recommend_best) | headline | given")
+    n_noise: int = Field(ge=0, description="parametric-bootstrap replicates")
+    seed: int
+    resume: bool = Field(False, description="restored from a checkpoint (no state reset)")
     wall_time: float
 
 
@@ -181,6 +201,7 @@ _TOPICS: dict[str, type[BaseModel]] = {
     TOPIC_RECORDING: RecordingEvent,
     TOPIC_DATASET: DatasetEvent,
     TOPIC_SNAPSHOT: SnapshotEvent,
+    TOPIC_ANCHOR: AnchorEvent,
     TOPIC_REPAIR: RepairEvent,
 }
 
@@ -355,6 +376,19 @@ class EventLog:
                           validation=[str(i) for i in validation_ids], processing=proc,
                           wall_time=time.time())
         self._write(system, TOPIC_DATASET, ev)
+
+    def log_anchor(self, system: str, epoch: int, anchor: Mapping[str, Any], *,
+                   resume: bool = False) -> None:
+        """Record that the trainer was anchored for the output-error phase after ``epoch``
+        completed epochs (``anchor``: trainer.anchoring.anchor_record)."""
+        ev = AnchorEvent(system=system, epoch=int(epoch),
+                         theta=[float(x) for x in anchor["theta"]],
+                         train=[str(i) for i in anchor["train"]],
+                         validation=[str(i) for i in anchor["validation"]],
+                         processing=anchor.get("processing"), source=str(anchor["source"]),
+                         n_noise=int(anchor["n_noise"]), seed=int(anchor["seed"]),
+                         resume=resume, wall_time=time.time())
+        self._write(system, TOPIC_ANCHOR, ev)
 
     def log_snapshot(self, system: str, snapshot_dict: Mapping[str, Any]) -> None:
         snap = json.loads(json.dumps(dict(snapshot_dict), default=_jsonable))

@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .mcap_log import (PLATFORM_METADATA, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_REPAIR,
-                       TOPIC_SNAPSHOT, TOPIC_SPEC, LogEvent, RecordingEvent, RepairEvent,
-                       SnapshotEvent, SpecEvent, read_events, read_metadata)
+from .mcap_log import (PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING,
+                       TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, AnchorEvent, LogEvent,
+                       RecordingEvent, RepairEvent, SnapshotEvent, SpecEvent, read_events,
+                       read_metadata)
 from .replay_verdict import (REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison,
                              summary_line)
 
@@ -68,6 +69,7 @@ class _DataSet:
     train: list[str]
     validation: list[str]
     processing: dict[str, Any] | None = None
+    anchor: AnchorEvent | None = None  # not a data set: the output-error phase's anchor
 
 
 @dataclass
@@ -208,6 +210,10 @@ def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
         last_snap = max((k for k, le in enumerate(seg.events) if le.topic == TOPIC_SNAPSHOT),
                         default=last_snap)
     for k, le in enumerate(seg.events[:last_snap]):
+        if le.topic == TOPIC_ANCHOR:
+            a = le.event
+            out.append(_DataSet(a.epoch, list(a.train), list(a.validation), a.processing, a))
+            continue
         if le.topic != TOPIC_DATASET:
             continue
         d = le.event
@@ -263,7 +269,7 @@ class _Replayer:
     def __init__(self, plan: _Plan, trainer_factory: Any = None) -> None:
         from siva_core import Structure
 
-        from .worker import default_trainer
+        from .trainer import default_trainer
 
         self.plan = plan
         self.structure = Structure.from_dict(plan.spec.spec)
@@ -306,6 +312,20 @@ class _Replayer:
         st = {r.name: proc.apply(r, self.structure.dofs) for r in recs}
         return [st[i] for i in train], [st[i] for i in val]
 
+    def anchor(self, trainer: Any, ev: AnchorEvent) -> None:
+        """The live trainer's output-error anchor, recomputed from the logged records."""
+        import numpy as np
+
+        from .trainer.anchoring import linearize_anchor, processing_from
+
+        if ev.resume and getattr(trainer, "oe", None) is not None:
+            return  # restored from a checkpoint: this replay's trainer never lost it
+        lin_tr, lin_va = linearize_anchor(
+            self.structure, np.asarray(ev.theta, dtype=float),
+            [self.recording(i) for i in ev.train], [self.recording(i) for i in ev.validation],
+            processing_from(ev.processing), n_noise=ev.n_noise, seed=ev.seed)
+        trainer.use_output_error(lin_tr, lin_va, resume=ev.resume)
+
     def run(self) -> tuple[Any, Any]:
         """Train to the final epoch; returns (trainer, last EpochLog or None)."""
         plan = self.plan
@@ -321,10 +341,19 @@ class _Replayer:
             if base is not None:
                 trainer.load_state_dict(_load_state(base))
             last_log = None
+            last_block = k == len(plan.restarts) - 1
             for ds in block:
+                if (last_block and plan.final_snapshot is not None and 0 < plan.final_epoch
+                        <= ds.epoch):
+                    # the live trainer publishes after epoch E and applies what arrived
+                    # between epochs E and E + 1 afterwards: the final snapshot predates it
+                    break
                 while trainer.epoch < ds.epoch:
                     last_log = trainer.run_epoch()
-                trainer.set_data(*self.states(ds))
+                if ds.anchor is not None:
+                    self.anchor(trainer, ds.anchor)
+                else:
+                    trainer.set_data(*self.states(ds))
         if trainer is not None:
             while trainer.epoch < plan.final_epoch:
                 last_log = trainer.run_epoch()
@@ -404,7 +433,8 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     parameter's std, 0 when identical - and the ``verdict`` identical / reproduced /
     differs, with the platform comparison that says which one was to be expected).
     """
-    from .estimate import estimate_parameters, estimate_view, jsonable
+    from .estimate import estimate_view, jsonable
+    from .trainer.readout import read_ensemble
 
     files = log_files(path)
     plan = _plan(files)
@@ -417,11 +447,12 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     if trainer is None:
         raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
                           "both a train and a validation recording)")
-    params, source = estimate_parameters(rp.structure, trainer)  # the service's own read-out
+    ens = read_ensemble(rp.structure, trainer)  # the service's own read-out
     disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
-    snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
+    snap = {"parameters": ens.to_json(), "estimate_source": ens.source, "discriminator": disc,
             "epoch": int(trainer.epoch), "converged": bool(trainer.converged),
-            "system": plan.spec.system, "ensemble": params, "ensemble_source": source,
+            "system": plan.spec.system, "ensemble": ens.to_json(), "ensemble_source": ens.source,
+            "ensemble_state": ens.state, "phase": ens.phase,
             **_logged_monitoring(plan.final_snapshot)}
     out = jsonable(estimate_view(snap, plan.counts))
     out["replay"] = jsonable({
@@ -444,7 +475,9 @@ def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
     if snap is None:
         return {}
     est = snap.estimate_dict()
-    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate")
+    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate",
+                               "validation", "model_rejected", "provisional", "agreement",
+                               "drift_status")
            if k in est}
     if est.get("estimate_source") == "best":
         out.update(parameters=est.get("parameters") or {}, estimate_source="best")

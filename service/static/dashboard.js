@@ -183,6 +183,8 @@ function renderEstimate(est) {
 function verdictOf(est) {
   for (const v of [get(est, "validation"), get(est, "best", "validation"), get(est, "verdict")]) {
     if (v && typeof v === "object" && typeof v.accepted === "boolean") return v;
+    if (v && typeof v === "object" && (v.verdict === "accepted" || v.verdict === "rejected"))
+      return Object.assign({}, v, { accepted: v.verdict === "accepted", statistic: v.T });  // the service's estimate
   }
   return null;
 }
@@ -234,7 +236,7 @@ function renderParamTraces(drift, est) {
   const hist = historyOf(drift);
   if (hist.length < 2) { dropPlots("param:"); box.replaceChildren(na("not yet available (fewer than 2 snapshots)")); return; }
   if (box.querySelector(".na")) box.replaceChildren();
-  const names = Object.keys(Object.assign({}, ...hist.map(e => e.recent || {}), ...hist.map(e => e.parameters || {})));
+  const names = Object.keys(Object.assign({}, ...hist.map(e => e.parameters || {}), ...hist.map(e => e.ensemble || {})));
   const alarms = (drift.alarms || []);
   const ref = get(drift, "reference", "parameters") || {};
   const x = hist.map(e => e.time);
@@ -243,10 +245,12 @@ function renderParamTraces(drift, est) {
     const id = "param:" + p;
     let holder = document.getElementById("holder-" + id);
     if (!holder) { holder = el("div", { id: "holder-" + id }); box.append(holder); }
-    const recent = hist.map(e => numOr(get(e, "recent", p)));
     const mean = hist.map(e => numOr(get(e, "parameters", p, "mean") ?? get(e, "parameters", p, "value")));
     const lo = hist.map(e => numOr(get(e, "parameters", p, "ci95", 0)));
     const hi = hist.map(e => numOr(get(e, "parameters", p, "ci95", 1)));
+    const ens = hist.map(e => numOr(get(e, "ensemble", p, "mean") ?? get(e, "ensemble", p)));
+    const elo = hist.map(e => numOr(get(e, "ensemble", p, "ci95", 0)));
+    const ehi = hist.map(e => numOr(get(e, "ensemble", p, "ci95", 1)));
     const band = get(ref, p, "band") || [];
     const rlo = x.map(() => numOr(band[0])), rhi = x.map(() => numOr(band[1]));
     const marks = alarmTimes(alarms, p);
@@ -255,15 +259,17 @@ function renderParamTraces(drift, est) {
       scales: { x: { time: true } },
       axes: [{ label: "time (local)" }, { size: 70 }],
       series: [{ label: "time" },
-        { label: "recent", stroke: "#1f77b4", width: 1 },
-        { label: "mean", stroke: "#ff7f0e", width: 1.5 },
+        { label: "headline", stroke: "#ff7f0e", width: 1.5 },
         { label: "95 % lo", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
         { label: "95 % hi", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
+        { label: "ensemble", stroke: "#1f77b4", width: 1 },
+        { label: "ens. 95 % lo", stroke: "rgba(31,119,180,0.4)", width: 0.5 },
+        { label: "ens. 95 % hi", stroke: "rgba(31,119,180,0.4)", width: 0.5 },
         { label: "ref lo", stroke: "#555", dash: [4, 4], width: 1 },
         { label: "ref hi", stroke: "#555", dash: [4, 4], width: 1 }],
-      bands: [{ series: [4, 3], fill: "rgba(255,127,14,0.18)" }],
+      bands: [{ series: [3, 2], fill: "rgba(255,127,14,0.18)" }, { series: [6, 5], fill: "rgba(31,119,180,0.15)" }],
     };
-    upsertPlot(id, holder, opts, [x, recent, mean, lo, hi, rlo, rhi]);
+    upsertPlot(id, holder, opts, [x, mean, lo, hi, ens, elo, ehi, rlo, rhi]);
   }
 }
 function numOr(v) { return typeof v === "number" && isFinite(v) ? v : null; }
@@ -290,16 +296,26 @@ function renderModal(drift) {
 // ------------------------------------------------------------------ validation score
 function renderValidation(est) {
   const box = document.getElementById("validation");
-  const recs = get(est, "discriminator", "records") || (verdictOf(est) ? null : get(est, "validation", "records"));
-  if (!recs || !Object.keys(recs).length) { box.replaceChildren(na()); return; }
-  const t = el("table", {}, el("tr", {}, ...["record", "score (loss_D)", "|loss_D − ln 4|", "D(measured)", "D(simulated)"].map(h => el("th", { text: h }))));
-  for (const [rid, r] of Object.entries(recs)) {
-    const score = r.score ?? r.loss_d;
-    t.append(el("tr", {}, el("td", { text: rid }), el("td", { class: "num", text: fmt(score, 4) }),
-      el("td", { class: "num", text: typeof score === "number" ? fmt(Math.abs(score - Math.log(4)), 3) : "–" }),
-      el("td", { class: "num", text: fmt(r.d_real, 3) }), el("td", { class: "num", text: fmt(r.d_fake, 3) })));
+  const v = get(est, "validation") || {};
+  const disc = get(est, "discriminator", "records") || {};
+  const rows = [];
+  for (const of of ["headline", "ensemble"]) {
+    for (const r of (get(v, of, "per_record") || [])) rows.push([of, r]);
   }
-  box.replaceChildren(t);
+  if (!rows.length) {
+    box.replaceChildren(na(v.reason || "not yet available"));
+    return;
+  }
+  const head = el("p", {}, el("span", { class: "badge " + (v.verdict === "rejected" ? "confirmed" : "cleared"),
+    text: `model ${v.verdict}` }), el("span", { text: `  T = ${fmt(v.T, 3)}, p = ${fmt(v.p_value, 3)} (${v.of})` }));
+  const t = el("table", {}, el("tr", {}, ...["of", "record", "T", "p-value", "verdict", "loss_D (discriminator)"].map(h => el("th", { text: h }))));
+  for (const [of, r] of rows) {
+    t.append(el("tr", {}, el("td", { text: of }), el("td", { text: r.record }),
+      el("td", { class: "num", text: fmt(r.T, 3) }), el("td", { class: "num", text: fmt(r.p_value, 3) }),
+      el("td", { text: r.verdict || r.error || "–" }),
+      el("td", { class: "num", text: fmt(get(disc, r.record, "loss_d"), 4) })));
+  }
+  box.replaceChildren(head, t);
 }
 
 // ------------------------------------------------------------------ latest record

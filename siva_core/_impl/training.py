@@ -383,12 +383,22 @@ class SivaTrainer:
         return e, conv, harvested
 
     # ------------------------------------------------------------------ output-error phase
-    def use_output_error(self, train: Linearization, val: Linearization | None = None) -> None:
+    def use_output_error(self, train: Linearization, val: Linearization | None = None, *,
+                         resume: bool = False) -> None:
         """Judge the generator from now on by the output error linearised at ``train.theta``
         (chain-consistent: see linearized.py).  The generator switches to local coordinates
         around the anchor (one unit = one standard error), the convergence monitor and the
         Approach II ensemble restart (equation-error samples are biased), and each epoch
-        fits the anchor's residuals plus one parametric-bootstrap noise replicate."""
+        fits the anchor's residuals plus one parametric-bootstrap noise replicate.
+
+        ``resume=True``: a trainer restored by ``load_state_dict`` from a checkpoint taken in
+        this phase gets the same linearisation back and nothing else changes (networks,
+        optimisers, monitor and ensemble are the checkpoint's): training continues exactly."""
+        if resume:
+            self.oe = _OutputErrorPhase.of(train, val, self.epoch)
+            if not hasattr(self, "oe_targets_"):
+                self.oe_targets_ = []
+            return
         s = self.settings
         step = train.step_matrix()
         self.generator.set_local(torch.from_numpy(train.theta), torch.from_numpy(step),

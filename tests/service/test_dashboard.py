@@ -26,7 +26,7 @@ needs_chromium = pytest.mark.skipif(chromium_missing() is not None, reason=str(c
 @pytest.fixture(scope="module")
 def trained(make_server, linear, oscillator, poll):
     """A server with the linear oscillator: 2 train + 1 validation record, trained until
-    the trainer publishes parameters."""
+    the headline is no longer provisional."""
     srv = make_server()
     with srv.client() as c:
         assert c.put("/v1/systems/osc", json=linear).status_code == 201
@@ -37,7 +37,9 @@ def trained(make_server, linear, oscillator, poll):
             assert r.status_code == 202, r.text
         # parameters published, and enough snapshots for the traces (the page needs two)
         poll(c, "/v1/systems/osc/drift", lambda b: len(b.get("history", [])) >= 3, timeout=120)
-        poll(c, "/v1/systems/osc/estimate", lambda b: bool(b.get("parameters")), timeout=120)
+        # ... and an estimate that is not provisional (best: it has a 95 % interval)
+        poll(c, "/v1/systems/osc/estimate",
+             lambda b: bool(b.get("parameters")) and b.get("provisional") is False, timeout=300)
     return srv
 
 

@@ -188,7 +188,11 @@ def test_fixture_replays_to_the_logged_estimate() -> None:
     assert set(out) >= {"parameters", "discriminator", "epoch", "converged", "n_recordings"}
     for p in ("b", "b_nl", "k", "k_nl"):
         s = out["parameters"][p]
-        assert set(s) >= {"mean", "std", "ci95"} and s["ci95"][0] <= s["mean"] <= s["ci95"][1]
+        assert set(s) >= {"mean", "std"}
+        if out["ensemble_state"] == "final":
+            assert s["ci95"][0] <= s["mean"] <= s["ci95"][1]
+        else:  # provisional (this short run never left the equation-error phase)
+            assert s.get("ci95") is None
     # the data set changed mid-run, later than the recording arrived: replay follows the
     # worker's dataset events, not the arrival epochs
     sets = [e.event.epoch for e in read_events(fx) if e.topic == TOPIC_DATASET]
