@@ -11,9 +11,18 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import importlib.util
+
 import numpy as np
 import pytest
-from conftest import linear_spec, oscillator_csv
+
+# this folder's conftest by path: ``from conftest import`` takes whichever conftest pytest
+# imported last (tests/instruments has one too)
+_spec = importlib.util.spec_from_file_location("_service_conftest",
+                                               Path(__file__).with_name("conftest.py"))
+_conftest = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_conftest)
+linear_spec, oscillator_csv = _conftest.linear_spec, _conftest.oscillator_csv
 
 from service.detector import YOUNG_Z, ChangeDetector, DetectorSettings
 from service.trainer.readout import ENSEMBLE_MIN_SAMPLES, read_ensemble
