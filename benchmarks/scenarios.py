@@ -288,6 +288,10 @@ def draw(seed: int) -> Scenario:
         visibility.append(vis_max)
     effects = [e for e in effects if e is not None]
 
+    # two effects that are fine alone can diverge together: drop the last until it runs
+    while effects and not np.all(np.isfinite(clean(effects, max(peaks)))):
+        effects.pop()
+        visibility.pop()
     gen = generator(effects)
     noise_rng = np.random.default_rng(noise_seed)
 

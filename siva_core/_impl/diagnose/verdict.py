@@ -48,7 +48,10 @@ def same_law(a: Candidate, b: Candidate) -> bool:
 #: laws that can mimic each other over a range of amplitudes (issue 16): fitted side by
 #: side at the leading place, named as rivals when the data cannot separate them
 LOOK_ALIKES = ({"damper", "quadratic_damper", "cubic_damper", "coulomb"},
-               {"spring", "cubic_spring", "clearance"})
+               {"spring", "cubic_spring", "clearance"},
+               # with known masses a force gain is a common gain of every response channel:
+               # on one DOF (one accelerometer) the two faults are one
+               {"accelerometer_gain", "force_gain"})
 
 
 def look_alike(a: str, b: str) -> bool:
@@ -99,10 +102,11 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                   and not same_law(top, c)), None)
     # look-alike laws at the same place that fit about as well: named beside the verdict
     # as rivals (the data cannot separate them), not a reason to name nothing
-    near = [c for c in fitted if c is not top and c.category == "structure"
+    near = [c for c in fitted if c is not top and c.category == top.category
             and c.effect.kind != top.effect.kind and not same_law(top, c)
             and np.isfinite(c.gap_after) and top.gap_after > settings.separation * c.gap_after]
-    look_alikes = [c for c in near if c.loc.between == top.loc.between
+    look_alikes = [c for c in near if (c.loc.between == top.loc.between
+                                       or c.category == "sensor")
                    and look_alike(top.effect.kind, c.effect.kind)]
     if rival is not None and rival in look_alikes:
         rival = next((c for c in fitted if c is not top and c.effect.kind != top.effect.kind
