@@ -33,7 +33,7 @@ from siva_core import diagnose  # noqa: E402
 import scenarios  # noqa: E402
 
 
-class CaseTimeout(Exception):
+class CaseTimeout(BaseException):  # not swallowed by the diagnosis's per-candidate guards
     pass
 
 
@@ -147,7 +147,7 @@ def main() -> int:
                 signal.alarm(int(args.limit))
             row = run(sc, args.verbose)
             signal.alarm(0)
-        except Exception as exc:  # noqa: BLE001 - a failed case counts as wrong
+        except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
             signal.alarm(0)
             row = {"seed": seed, "category": sc.category if sc is not None else "error",
                    "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
