@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 from urllib.parse import quote
 
 import httpx
@@ -104,11 +104,14 @@ class SivaClient:
         return out
 
     def upload(self, name: str, path_or_bytes: str | Path | bytes, role: str | None = None,
-               *, fmt: str | None = None) -> dict[str, Any]:
+               *, fmt: str | None = None, channel_map: Sequence[str] = (),
+               units: Sequence[str] = ()) -> dict[str, Any]:
         """POST one recording; returns the server's acknowledgement (``{"id": ...}``).
 
         ``role`` None lets the server choose (its documented default policy).  Bytes are
-        sent as CSV unless ``fmt`` says otherwise; files by their suffix.
+        sent as CSV unless ``fmt`` says otherwise; files by their suffix.  ``channel_map``
+        (``"Accel LO=acc_LO"``) and ``units`` (``"acc_LO=g"``) are the upload's ``map`` and
+        ``unit`` query parameters: how the server reads this file's channels.
         """
         if isinstance(path_or_bytes, (bytes, bytearray)):
             data, fmt = bytes(path_or_bytes), (fmt or "csv")
@@ -124,7 +127,11 @@ class SivaClient:
         if fmt not in CONTENT_TYPES:
             raise SivaClientError(f"unknown recording format {fmt!r} "
                                   f"(one of {', '.join(sorted(CONTENT_TYPES))})")
-        params: dict[str, str] = {}
+        params: dict[str, str | list[str]] = {}
+        if channel_map:
+            params["map"] = list(channel_map)
+        if units:
+            params["unit"] = list(units)
         if role is not None:
             params["role"] = _check_role(role)
         if filename:
@@ -134,7 +141,9 @@ class SivaClient:
                           content=data, headers=headers)
 
     def upload_folder(self, name: str, folder: str | Path, role: str | None = None,
-                      warn: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+                      warn: Callable[[str], None] | None = None, *,
+                      channel_map: Sequence[str] = (),
+                      units: Sequence[str] = ()) -> list[dict[str, Any]]:
         """Upload every recording file of a folder, in name order.
 
         Roles: ``role`` for all when given; otherwise files under ``train/`` and
@@ -153,7 +162,7 @@ class SivaClient:
         out = []
         for path, r in items:
             try:
-                ack = self.upload(name, path, role=r)
+                ack = self.upload(name, path, role=r, channel_map=channel_map, units=units)
             except SivaClientError as exc:
                 if exc.status not in (413, 415, 422):
                     raise
@@ -162,9 +171,16 @@ class SivaClient:
             out.append({"path": str(path), "role": r, **ack})
         return out
 
-    def delete(self, name: str) -> dict[str, Any]:
-        """DELETE a system with its recordings, estimate and history."""
-        return self._json("DELETE", _sys(name))
+    def delete(self, name: str, *, archive_logs: bool = False) -> dict[str, Any]:
+        """DELETE a system with its recordings, estimate and history, and its MCAP event
+        logs: deleted, or moved to the server's ``<data>/archive/logs/`` with
+        ``archive_logs``.  The answer's ``logs`` says which (``action``, ``files``)."""
+        return self._json("DELETE", _sys(name),
+                          params={"logs": "archive" if archive_logs else "delete"})
+
+    def export(self, name: str, what: str) -> bytes:
+        """A CSV export: ``estimates`` | ``records`` | ``drift`` | ``alarms`` (the bytes)."""
+        return self._request("GET", f"{_sys(name)}/export/{quote(what, safe='')}.csv").content
 
     def drift_reset(self, name: str) -> dict[str, Any]:
         """Forget the drift reference and alarms (e.g. after a repair); history is kept."""

@@ -4,23 +4,43 @@
 #   a write without the token 401; uploads 202; the estimate converges; after a container
 #   restart the recordings and the estimate are still there (named volume).
 #
-#   docker/smoke.sh                                  # on the official python:3.11-slim
-#   BASE_IMAGE=siva-base:bookworm docker/smoke.sh    # on a plain Debian image; made with
-#                                                    # debootstrap when MAKE_BASE=1 (below)
+#   docker/smoke.sh          # finds by itself what this machine can reach (below)
+#   BASE_IMAGE=python:3.11-slim TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu docker/smoke.sh
+#
+# What it uses when not told (each choice is printed):
+#   base image   python:3.11-slim when present or pullable; else siva-base:bookworm, made
+#                with `debootstrap --variant=minbase bookworm` (root; debootstrap is
+#                apt-installed if missing) from the mirror of this machine's apt sources
+#   torch        the CPU wheel of requirements.lock from PyTorch's CPU index when it
+#                answers; else from a local folder holding torch-<version>+cpu-cp311-*.whl
+#                (WHEELHOUSE, else pip's find-links, e.g. /opt/wheels), served on 127.0.0.1
+#                to the build (which then uses the host network)
+#   other wheels pip's default index (PyPI), hashes checked against requirements.lock
 # Environment (all optional):
-#   BASE_IMAGE       base image (default python:3.11-slim)
-#   MAKE_BASE=1      create BASE_IMAGE from `debootstrap --variant=minbase bookworm` first
-#                    (needs root and debootstrap; DEBIAN_MIRROR, default deb.debian.org)
-#   TORCH_INDEX_URL  where torch comes from (default: PyTorch's CPU index)
-#   WHEELHOUSE       a local folder of wheels (e.g. a torch CPU wheel) served on 127.0.0.1
-#                    during the build (the build then uses the host network)
+#   BASE_IMAGE       base image (CPython 3.11: the lock's wheels are cp311)
+#   MAKE_BASE=1      create BASE_IMAGE with debootstrap even when not needed to
+#   DEBIAN_MIRROR    mirror for debootstrap (default: from /etc/apt, else deb.debian.org)
+#   TORCH_INDEX_URL  where torch comes from; empty: only from WHEELHOUSE
+#   WHEELHOUSE       a local folder of wheels (e.g. the torch CPU wheel)
 #   EXTRA_CA_CERTS   PEM files trusted during the build (a TLS-intercepting proxy)
 #   PORT             host port (default 18080), bound to 127.0.0.1
 #   CONVERGE_TIMEOUT seconds to wait for convergence (default 900); KEEP=1 keeps the volume
+#   docker/smoke.sh --context-mb SIZE   only converts docker's size text ("3.229MB",
+#                                       "3.229 MB", "612kB", "1.2GB") to MB (tested)
 set -euo pipefail
 
+# docker's human sizes (go-units: decimal kB/MB/GB, with or without a space) in MB
+context_mb() {
+    awk -v s="$1" 'BEGIN {
+        if (!match(s, /^[0-9]+(\.[0-9]+)?/)) exit 1
+        n = substr(s, 1, RLENGTH); u = substr(s, RLENGTH + 1); gsub(/[ \t]/, "", u)
+        if (u == "B") f = 1e-6; else if (u == "kB" || u == "KB") f = 1e-3
+        else if (u == "MB") f = 1; else if (u == "GB") f = 1e3; else exit 1
+        printf "%.3f\n", n * f }'
+}
+if [ "${1:-}" = "--context-mb" ]; then context_mb "$2"; exit; fi
+
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-BASE_IMAGE=${BASE_IMAGE:-python:3.11-slim}
 IMAGE=${IMAGE:-siva:smoke}
 PORT=${PORT:-18080}
 TOKEN=${TOKEN:-smoke-$RANDOM$RANDOM}
@@ -42,9 +62,49 @@ cleanup() {
 }
 trap cleanup EXIT
 
+# ---------------------------------------------------------------- what this machine reaches
+apt_mirror() {  # the first Debian mirror of this machine's apt sources
+    { grep -hs '^URIs:' /etc/apt/sources.list.d/*.sources | awk '{print $2}'
+      grep -hs '^deb ' /etc/apt/sources.list /etc/apt/sources.list.d/*.list \
+          | sed 's/\[[^]]*\]//' | awk '{print $2}'; } | grep -m1 -E '^https?://' || true
+}
+if [ -z "${BASE_IMAGE:-}" ]; then
+    if docker image inspect python:3.11-slim >/dev/null 2>&1 \
+       || timeout 120 docker pull -q python:3.11-slim >/dev/null 2>&1; then
+        BASE_IMAGE=python:3.11-slim
+    else
+        BASE_IMAGE=siva-base:bookworm
+        MAKE_BASE=1
+    fi
+fi
+say "base image: $BASE_IMAGE"
+TORCH_VERSION=$(sed -n 's/^torch==\([0-9.]*\)+cpu.*/\1/p' "$ROOT/requirements.lock")
+if [ -z "${TORCH_INDEX_URL+set}" ]; then
+    if curl -sfL --max-time 20 -o /dev/null https://download.pytorch.org/whl/cpu/torch/; then
+        TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu
+    else
+        TORCH_INDEX_URL=""
+    fi
+fi
+if [ -z "$TORCH_INDEX_URL" ] && [ -z "${WHEELHOUSE:-}" ]; then
+    for dir in ${PIP_FIND_LINKS:-} $(python3 -m pip config get global.find-links 2>/dev/null) \
+               /opt/wheels; do
+        dir=${dir#file://}
+        if ls "$dir"/torch-"$TORCH_VERSION"+cpu-cp311-*.whl >/dev/null 2>&1; then
+            WHEELHOUSE=$dir; break
+        fi
+    done
+    [ -n "${WHEELHOUSE:-}" ] || fail "torch $TORCH_VERSION+cpu: PyPI has no CPU wheel, PyTorch's \
+index does not answer and no local torch-$TORCH_VERSION+cpu-cp311-*.whl was found: set \
+TORCH_INDEX_URL or WHEELHOUSE"
+fi
+say "torch $TORCH_VERSION+cpu from: ${TORCH_INDEX_URL:-no index}${WHEELHOUSE:+ + wheelhouse $WHEELHOUSE}"
+
 # ---------------------------------------------------------------- base image (optional)
 if [ "${MAKE_BASE:-0}" = 1 ] && ! docker image inspect "$BASE_IMAGE" >/dev/null 2>&1; then
-    MIRROR=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
+    MIRROR=${DEBIAN_MIRROR:-$(apt_mirror)}
+    MIRROR=${MIRROR:-http://deb.debian.org/debian}
+    command -v debootstrap >/dev/null || { apt-get update -qq && apt-get install -y -qq debootstrap; }
     say "debootstrap bookworm from $MIRROR -> $BASE_IMAGE"
     debootstrap --variant=minbase bookworm "$WORK/rootfs" "$MIRROR" >"$WORK/debootstrap.log"
     tar -C "$WORK/rootfs" -c . | docker import - "$BASE_IMAGE" >/dev/null
@@ -52,8 +112,7 @@ if [ "${MAKE_BASE:-0}" = 1 ] && ! docker image inspect "$BASE_IMAGE" >/dev/null 
 fi
 
 # ---------------------------------------------------------------- build
-build_args=(--build-arg "BASE_IMAGE=$BASE_IMAGE")
-[ -z "${TORCH_INDEX_URL:-}" ] || build_args+=(--build-arg "TORCH_INDEX_URL=$TORCH_INDEX_URL")
+build_args=(--build-arg "BASE_IMAGE=$BASE_IMAGE" --build-arg "TORCH_INDEX_URL=$TORCH_INDEX_URL")
 for ca in ${EXTRA_CA_CERTS:-}; do cp "$ca" "$ROOT/docker/build-ca/$(basename "${ca%.*}").crt"; done
 if [ -n "${WHEELHOUSE:-}" ]; then
     WPORT=$((PORT + 1))
@@ -66,14 +125,16 @@ say "building $IMAGE on $BASE_IMAGE"
 t0=$(date +%s)
 DOCKER_BUILDKIT=0 docker build -f "$ROOT/docker/Dockerfile" -t "$IMAGE" "${build_args[@]}" "$ROOT" \
     >"$WORK/build.log" 2>&1 || { tail -30 "$WORK/build.log" >&2; fail "docker build"; }
-context=$(grep -o 'Sending build context to Docker daemon *[0-9.]* *[kMG]*B' "$WORK/build.log" \
-          | tail -1 | sed 's/.*daemon *//')
-say "built in $(( $(date +%s) - t0 )) s; build context $context; image $(docker image inspect \
-    -f '{{.Size}}' "$IMAGE" | awk '{printf "%.0f MB", $1/1e6}')"
-case "$context" in
-    *GB) fail "build context $context (>= 20 MB)";;
-    *MB) awk -v c="${context% MB}" 'BEGIN{exit !(c < 20)}' || fail "build context $context (>= 20 MB)";;
-esac
+# the legacy builder says "Sending build context to Docker daemon  3.229MB" (older versions
+# "3.229 MB"), BuildKit "transferring context: 3.23MB"
+context=$(grep -oE '(Sending build context to Docker daemon|transferring context:) *[0-9.]+ *[kKMG]?B' \
+          "$WORK/build.log" | tail -1 | sed -E 's/.*(daemon|context:) *//')
+say "built in $(( $(date +%s) - t0 )) s; build context ${context:-not reported}; image \
+$(docker image inspect -f '{{.Size}}' "$IMAGE" | awk '{printf "%.0f MB", $1/1e6}')"
+if [ -n "$context" ]; then
+    mb=$(context_mb "$context") || fail "cannot read the build context size '$context'"
+    awk -v c="$mb" 'BEGIN{exit !(c < 20)}' || fail "build context $context (>= 20 MB)"
+fi
 
 # ---------------------------------------------------------------- token required
 if timeout 120 docker run --rm "$IMAGE" >"$WORK/notoken.log" 2>&1; then

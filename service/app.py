@@ -28,6 +28,7 @@ from siva_core import RecordingTooLarge
 from .errors import ApiError, UploadTooLarge
 from .routes import router
 from .limits import LimitError, check_sampling_rate, check_structure
+from .security import SecurityMiddleware, allowed_hosts
 from .settings import Settings
 from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
 from .uploads import parse_upload
@@ -45,6 +46,8 @@ class _NoEvents:
     def rotate(self, *a: Any, **k: Any) -> None: ...
     def log_dataset(self, *a: Any, **k: Any) -> None: ...
     def log_snapshot(self, *a: Any, **k: Any) -> None: ...
+    def remove(self, *a: Any, **k: Any) -> dict[str, Any]:
+        return {"action": "none", "files": 0}
     def close(self) -> None: ...
 
 
@@ -74,6 +77,7 @@ class SivaService:
         self.workers: dict[str, TrainerHandle] = {}
         self.executor: Any = None
         self.broken: dict[str, str] = {}
+        self.repairs: dict[str, Any] = {}  # name -> service.reconcile.Repair (this start)
         self._lock = threading.Lock()
         # supervision: a trainer thread that died is replaced (from its checkpoint) after
         # a back-off; until then /healthz says so
@@ -102,6 +106,7 @@ class SivaService:
                 continue
             self.structures[name] = structure
             self._safe_event("log_spec", name, self.store.spec(name))
+            self._reconcile(name)
             self._start_worker(name, structure)
         log.info("service started: %d system(s) from %s", len(self.structures),
                  self.settings.data_dir)
@@ -179,6 +184,19 @@ class SivaService:
             self.workers[name] = w
         w.start()
 
+    def _reconcile(self, name: str) -> None:
+        """Bring the event log of ``name`` in line with the store before its trainer
+        starts (service/reconcile.py); a failure is logged, never fatal: the log is an
+        audit trail, the store keeps serving."""
+        from .reconcile import reconcile
+
+        if not hasattr(self.events, "folder"):  # the event log is disabled
+            return
+        try:
+            self.repairs[name] = reconcile(self.events, self.store, name)
+        except Exception:  # noqa: BLE001
+            log.exception("event log of %s: start-up reconciliation failed", name)
+
     def _safe_event(self, method: str, *args: Any, **kw: Any) -> None:
         try:
             getattr(self.events, method)(*args, **kw)
@@ -228,9 +246,15 @@ class SivaService:
         self._start_worker(name, structure)
         return True, structure
 
-    def delete_system(self, name: str) -> None:
+    def delete_system(self, name: str, *, archive_logs: bool = False) -> dict[str, Any]:
         """Stop the trainer (at most ``stop_timeout_s``), then delete atomically.  A delete
-        the disk refuses (507) changes nothing: the trainer is started again."""
+        the disk refuses (507) changes nothing: the trainer is started again.  Then the
+        system's MCAP event logs are deleted too, or archived (``archive_logs``); returns
+        what happened to them (``EventLog.remove``)."""
+        try:
+            n_recordings = sum(self.store.counts(name).values())
+        except UnknownSystem:
+            n_recordings = None
         with self._lock:
             w = self.workers.get(name)
         if w is not None:
@@ -254,13 +278,27 @@ class SivaService:
             self.broken.pop(name, None)
         self.executor.removed(name)
         self._dead.pop(name, None)
+        try:
+            logs = self.events.remove(name, archive=archive_logs)
+        except OSError as exc:  # the system is gone; its logs stay, and the answer says so
+            log.error("%s: cannot remove the event logs: %s", name, exc)
+            logs = {"action": "kept", "files": None,
+                    "error": f"the event logs could not be {'archived' if archive_logs else 'deleted'} "
+                             f"({exc.strerror or exc}); they are under logs/{name}/"}
+        return {"recordings": n_recordings, "logs": logs}
 
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
-                      filename: str) -> dict[str, Any]:
+                      filename: str, channel_map: dict[str, str] | None = None,
+                      units: dict[str, str] | None = None) -> dict[str, Any]:
         """Validate, store durably, log, notify the worker; runs in a worker thread."""
         w = self.worker(name)
         try:
-            info = parse_upload(w.structure, raw, fmt, filename)
+            try:
+                rates = {m.filename or m.id: m.fs for m in self.store.recordings(name)}
+            except UnknownSystem as exc:
+                raise ApiError(404, str(exc)) from None
+            info = parse_upload(w.structure, raw, fmt, filename, channel_map=channel_map,
+                                units=units, existing_rates=rates, theta=_estimate_theta(w))
             check_sampling_rate(float(info.get("fs", 0.0)), filename, self.settings)
         except RecordingTooLarge as exc:
             raise ApiError(413, str(exc)) from None
@@ -273,7 +311,7 @@ class SivaService:
             # the log entry is durable before the store commits and before the 202: every
             # acknowledged recording is in the log (a failure here aborts the upload)
             self.events.log_recording(name, meta.id, meta.role, raw, fmt, w.epoch,
-                                      name=filename)
+                                      name=filename, channel_map=channel_map, units=units)
 
         try:
             meta, duplicate = self.store.add_recording(name, raw, role=role, fmt=fmt,
@@ -358,6 +396,10 @@ class BodyLimitMiddleware:
                 await _send_json(send, 413, str(exc))
 
 
+def _csv(text: str) -> list[str]:
+    return [x.strip() for x in (text or "").split(",") if x.strip()]
+
+
 def _too_large(limit: int, what: str) -> str:
     return f"request body too large: {what}, the limit is {limit} bytes (SIVA_MAX_UPLOAD_BYTES)"
 
@@ -398,6 +440,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     from .routes_diagnosis import router as diagnosis_router
 
     app.include_router(diagnosis_router)
+    from .routes_export import router as export_router
+
+    app.include_router(export_router)
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
@@ -432,9 +477,31 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        "this is a bug, it has been logged"}, status_code=500)
 
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_upload_bytes)
+    app.add_middleware(SecurityMiddleware,  # Host allow-list, cross-site writes, headers
+                       hosts=allowed_hosts(_csv(settings.allowed_hosts), settings.bind_host),
+                       origins=_csv(settings.allowed_origins))
     metrics.install(app, service)  # GET /metrics; its middleware outermost (counts 413s too)
     return app
 
 
 __all__ = ["create_app", "SivaService", "ApiError", "UploadTooLarge", "BodyLimitMiddleware",
            "UnknownRecording"]
+
+
+def _estimate_theta(w: Any) -> Any:
+    """The system's converged estimate as a parameter vector (its modes bound the sampling
+    rate of new records), or None before convergence or when a value is missing."""
+    import numpy as np
+
+    try:
+        snap = w.snapshot() or {}
+    except Exception:  # noqa: BLE001 - a trainer without a snapshot yet
+        return None
+    if not snap.get("converged"):
+        return None
+    params = snap.get("parameters") or {}
+    vals = [(params.get(p) or {}).get("mean") for p in w.structure.free]
+    if not vals or any(v is None for v in vals):
+        return None
+    theta = np.array(vals, dtype=float)
+    return theta if np.all(np.isfinite(theta)) else None

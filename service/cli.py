@@ -30,6 +30,10 @@ def _serve_args(p: argparse.ArgumentParser) -> None:
 def _replay_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="LOG.mcap")
     p.add_argument("--out", help="write JSON here instead of stdout")
+    p.add_argument("--tolerance", type=float, default=None, metavar="STD",
+                   help="a replay on another platform is 'reproduced' when every parameter "
+                        "mean is within this many published stds of the log's (default 0.1); "
+                        "beyond it the verdict is 'differs' and the exit code 1")
 
 
 #: the service's subcommands of ``siva``
@@ -61,7 +65,8 @@ def serve_command(args: argparse.Namespace) -> int:
     if "SIVA_DATA_DIR" in os.environ and data_dir == "./siva-data":
         data_dir = None  # the parser's default: let the environment decide
     settings = Settings.from_env(data_dir=data_dir, executor=getattr(args, "executor", None),
-                                 ray_address=getattr(args, "ray_address", None))
+                                 ray_address=getattr(args, "ray_address", None),
+                                 bind_host=args.host)
     if settings.executor == "ray":
         try:
             import ray  # noqa: F401
@@ -90,8 +95,12 @@ def _start_demo(host: str, port: int, settings: Any) -> None:
 
 
 def replay_command(args: argparse.Namespace) -> int:
-    """Re-run a service MCAP log and write the final estimate (shape of GET .../estimate)."""
-    from .replay import write_replay
+    """Re-run a service MCAP log and write the final estimate (shape of GET .../estimate);
+    exit 0 when the verdict is identical or reproduced, 1 when it differs."""
+    from .replay import REPRODUCED_TOLERANCE_IN_STD, write_replay
 
-    write_replay(args.log, getattr(args, "out", None))
-    return 0
+    tol = getattr(args, "tolerance", None)
+    result = write_replay(args.log, getattr(args, "out", None),
+                          REPRODUCED_TOLERANCE_IN_STD if tol is None else tol)
+    cmp = (result.get("replay") or {}).get("compared_to_log") or {}
+    return 1 if cmp.get("verdict") == "differs" else 0

@@ -10,10 +10,11 @@ on a machine without internet.  ``install(app)`` is the one hook app.py calls.
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, Request
+from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
@@ -21,6 +22,8 @@ from starlette.concurrency import run_in_threadpool
 
 from siva_core import Recording, RecordingError
 
+from .routes import ERROR_RESPONSES, require_read_token
+from .security import csp_with_scripts
 from .latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
 from .store import UnknownSystem
 from .timefmt import iso_utc
@@ -39,15 +42,21 @@ async def dashboard_page() -> FileResponse:
 
 @router.get("/docs", include_in_schema=False)
 async def swagger_ui(request: Request) -> HTMLResponse:
-    """Swagger UI from the vendored assets (FastAPI's default loads them from a CDN)."""
-    return get_swagger_ui_html(openapi_url=request.app.openapi_url or "/openapi.json",
+    """Swagger UI from the vendored assets (FastAPI's default loads them from a CDN), with a
+    CSP that allows its one inline script by hash."""
+    page = get_swagger_ui_html(openapi_url=request.app.openapi_url or "/openapi.json",
                                title="siva - API",
                                swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
                                swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
                                swagger_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png")
+    html = bytes(page.body).decode()
+    inline = re.findall(r"<script>(.*?)</script>", html, flags=re.S)
+    return HTMLResponse(html, headers={"Content-Security-Policy": csp_with_scripts(*inline)})
 
 
-@router.get("/v1/systems/{name}/latest-record", tags=["dashboard"])
+@router.get("/v1/systems/{name}/latest-record", tags=["dashboard"],
+            responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 404, 409, 421)},
+            dependencies=[Depends(require_read_token)])
 async def latest_record(name: str, request: Request) -> dict[str, Any]:
     """The most recent recording simulated with the current estimate (``best`` when there
     is one, else the headline means): measured vs simulated displacement [mm] and residual,
@@ -77,7 +86,8 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
 
     def compute() -> dict[str, Any]:
         raw = svc.store.read_raw(name, meta)
-        rec = Recording.read(raw, w.structure.dofs, name=meta.filename or meta.id, fmt=meta.fmt)
+        rec = Recording.read(raw, w.structure.dofs, name=meta.filename or meta.id, fmt=meta.fmt,
+                             **meta.read_options(w.structure))
         proc = getattr(w, "_proc", None)  # the chain the trainer uses, when it has one
         try:
             series = compute_latest(w.structure, rec, proc, theta)

@@ -53,6 +53,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .forming_baseline import YOUNG_MIN_SEGMENT, YOUNG_Z, young_change
+
 #: |z| below which a value counts as "back to baseline" when clearing a confirmed alarm
 CLEAR_Z = 2.0
 #: chi-square(1) 95 % quantile: change-point positions within this much cost of the best
@@ -139,6 +141,9 @@ class ChangeDetector:
         if self.baseline is None:
             for q in self.quantities:
                 self.base[q].append([self.values[q][-1], self.errors[q][-1]])
+            young = self._young_test()
+            if young:
+                return young
             if self.seen >= self.settings.baseline_records:
                 self.baseline = self._fit_baseline()
                 for q in self.quantities:  # baseline values standardised for change points
@@ -156,6 +161,33 @@ class ChangeDetector:
             c[1] = max(0.0, c[1] - z - self.settings.k)
             changed.extend(self._update_alarm(q, n - 1))
         return changed
+
+    # ------------------------------------------------------------------ forming baseline
+    def _young_test(self) -> list[dict[str, Any]]:
+        """A change *inside* the forming baseline (``forming_baseline.py``): alarms, and the
+        baseline restarts with the records after the change."""
+        m = len(self.base[self.quantities[0]]) if self.quantities else 0
+        found = young_change(self.base, self.records[len(self.records) - m:], self.kinds,
+                             self.settings.min_rel_scatter, len(self.alarms) + 1)
+        if found is None:
+            return []
+        t, alarms = found
+        self.alarms.extend(alarms)
+        for q in self.quantities:
+            self.base[q] = self.base[q][t:]
+        self.seen = m - t
+        return alarms
+
+    def young_report(self) -> dict[str, Any]:
+        """What the forming-baseline test can see now (for the drift status)."""
+        m = len(self.base[self.quantities[0]]) if self.quantities else 0
+        s = self.settings
+        detectable = None
+        if m >= YOUNG_MIN_SEGMENT + 1:
+            nb = max(YOUNG_MIN_SEGMENT, m + 1 - YOUNG_MIN_SEGMENT)
+            detectable = YOUNG_Z * s.min_rel_scatter * math.sqrt(1 / nb + 1 / YOUNG_MIN_SEGMENT)
+        return {"active": self.baseline is None, "records": m, "threshold_z": YOUNG_Z,
+                "min_segment": YOUNG_MIN_SEGMENT, "min_detectable_rel": detectable}
 
     def _extend_baseline(self) -> None:
         """Self-starting reference: the record ``baseline_guard`` records back joins the
@@ -233,6 +265,8 @@ class ChangeDetector:
     # ------------------------------------------------------------------ alarms
     def _active(self, q: str) -> dict[str, Any] | None:
         for a in reversed(self.alarms):
+            if a.get("young"):
+                continue  # raised inside the baseline: stays until a reset (not a CUSUM)
             if a["parameter"] == q and a["state"] in ("raised", "confirmed"):
                 return a
         return None
@@ -271,7 +305,10 @@ class ChangeDetector:
             return [active]
         # confirmed: cleared once the quantity is back to baseline
         recent = [z for z in self.z[q][-s.clear_records:] if z is not None]
-        if len(recent) >= s.clear_records and all(abs(z) < CLEAR_Z for z in recent):
+        if (len(recent) >= s.clear_records and all(abs(z) < CLEAR_Z for z in recent)
+                and abs(sum(recent)) / math.sqrt(len(recent)) < CLEAR_Z):
+            # each value near the baseline *and* their mean too: a small persistent shift
+            # (each |z| < 2, all on one side) is not "back to baseline"
             self._clear(active, q, rec, f"back to baseline for {s.clear_records} records")
             return [active]
         z = self.z[q][i]
@@ -289,6 +326,7 @@ class ChangeDetector:
         alarm.update(state="cleared", active=False, cleared_record=rec.get("id"),
                      cleared_index=rec.get("index"), cleared_time=rec.get("time"),
                      cleared_because=why)
+        alarm["message"] = alarm_message(alarm)  # the change as last described, new state
         self.cusum[q] = [0.0, 0.0]
 
     def _describe(self, alarm: dict[str, Any], q: str) -> None:
@@ -316,25 +354,50 @@ class ChangeDetector:
         alarm["reference"] = centre
         alarm["value"] = vals[-1] if vals else None
         alarm["cusum"] = list(self.cusum[q])
+        sign = -1.0 if alarm["direction"] == "decrease" else 1.0
+        alarm["change_rel"], alarm["change_rel_ci95"], alarm["change_since_index"] = None, None, None
+        alarm["change_estimate"] = None
         if cp is not None and centre:
-            alarm["change_rel"] = cp["change"] / abs(centre)
-            alarm["change_rel_ci95"] = [x / abs(centre) for x in cp["change_ci95"]]
-        elif centre and vals:
-            alarm["change_rel"] = (vals[-1] - centre) / abs(centre)
-            alarm["change_rel_ci95"] = None
-        else:
-            alarm["change_rel"], alarm["change_rel_ci95"] = None, None
-        rel = alarm["change_rel"]
-        what = f"{q} {alarm['direction']}d"
-        if rel is not None:
-            what += f" by {abs(rel) * 100:.1f} %"
-            if alarm.get("change_rel_ci95"):
-                lo, hi = sorted(abs(x) * 100 for x in alarm["change_rel_ci95"])
-                what += f" (95 % CI {lo:.1f}-{hi:.1f} %)"
-        if cp is not None:
-            what += (f", changed at record {cp['record_index']} (95 % set "
-                     f"{cp['interval_records'][0]}-{cp['interval_records'][1]})")
-        alarm["message"] = f"{what}; {alarm['state']}"
+            ci = [x / abs(centre) for x in cp["change_ci95"]]
+            if min(sign * ci[0], sign * ci[1]) > 0:  # significant, in the alarm's direction
+                alarm.update(change_rel=cp["change"] / abs(centre), change_rel_ci95=ci,
+                             change_since_index=cp["record_index"],
+                             change_estimate="change point: mean after - mean before")
+        if alarm["change_rel"] is None and centre:
+            # the change point does not show the shift the CUSUM saw (e.g. a slow drift):
+            # the mean since the CUSUM of the alarm's side last stood at zero, against the
+            # reference - the estimate that goes with the evidence that raised the alarm
+            est = self._cusum_change(q, 0 if sign > 0 else 1, start, b)
+            if est is not None:
+                rel, lo, hi, since = est
+                alarm.update(change_rel=rel, change_rel_ci95=[lo, hi], change_since_index=since,
+                             change_estimate="CUSUM: mean since its last zero - reference")
+        alarm["message"] = alarm_message(alarm)
+
+    def _cusum_change(self, q: str, side: int, start: int, b: Mapping[str, Any]
+                      ) -> tuple[float, float, float, Any] | None:
+        """(relative change, 95 % interval, first record index) of the values since the
+        one-sided CUSUM ``side`` was last zero, against the reference centre."""
+        k, acc, last_zero = self.settings.k, 0.0, start - 1
+        n = len(self.records)
+        for i in range(start, n):
+            z = self.z[q][i]
+            if z is None:
+                continue
+            acc = max(0.0, acc + (z if side == 0 else -z) - k)
+            if acc == 0.0:
+                last_zero = i
+        idx = [i for i in range(last_zero + 1, n) if self.values[q][i] is not None]
+        centre = b.get("centre")
+        if not idx or not centre:
+            return None
+        x = np.array([self.values[q][i] for i in idx], dtype=float)
+        s = np.array([self._scale(q, i) or np.nan for i in idx], dtype=float)
+        var = float(np.nanmean(s ** 2)) / len(idx) if np.isfinite(s).any() else 0.0
+        se = math.sqrt(var + float(b.get("centre_se") or 0.0) ** 2)
+        change = float(x.mean()) - centre
+        return (change / abs(centre), (change - 1.96 * se) / abs(centre),
+                (change + 1.96 * se) / abs(centre), self.records[idx[0]].get("index"))
 
     # ------------------------------------------------------------------ read-out
     def report(self) -> dict[str, Any]:
@@ -343,6 +406,7 @@ class ChangeDetector:
                          "false_alarms_per_1000_records_nominal":
                              1000.0 / self.settings.arl0_records},
                 "reference": self.baseline,
+                "young_baseline": self.young_report(),
                 "n_records": len(self.records),
                 "alarms": [dict(a) for a in self.alarms],
                 "active_alarms": [a["parameter"] for a in self.alarms if a["active"]]}
@@ -377,6 +441,40 @@ class ChangeDetector:
         self.seen = int(d.get("seen", len(self.records)))
         self.cusum = {q: list(v) for q, v in d["cusum"].items()}
         self.alarms = [dict(a) for a in d.get("alarms", [])]
+
+
+def alarm_message(alarm: Mapping[str, Any]) -> str:
+    """One sentence that states the change once, consistent with the alarm's state.
+
+    Active: "f1_hz decreased by 1.0 % (95 % CI 0.4-1.6 %) since record 12; confirmed at
+    record 15".  Cleared: what was raised, then when and why it was cleared - never the
+    state it had before."""
+    q = alarm.get("parameter", "?")
+    rel, ci = alarm.get("change_rel"), alarm.get("change_rel_ci95")
+    noun = "decrease" if alarm.get("direction") == "decrease" else "increase"
+    if rel is not None:
+        amount = f"{abs(rel) * 100:.1f} %"
+        if ci:
+            lo, hi = (100 * x for x in ci)
+            amount += (f" (95 % CI {min(abs(lo), abs(hi)):.1f}-{max(abs(lo), abs(hi)):.1f} %)"
+                       if lo * hi > 0 else f" (95 % CI {lo:+.1f} to {hi:+.1f} %)")
+    else:
+        amount = ""
+    since = alarm.get("change_since_index")
+    when = f" since record {since}" if since is not None else ""
+    state = alarm.get("state")
+    if state == "cleared":
+        raised = alarm.get("raised_index")
+        what = f"{q}: {noun}" + (f" of {amount}" if amount else "") + when
+        how = ("raised at record {r}, confirmed at record {c}" if alarm.get("confirmed_record")
+               else "raised at record {r}").format(r=raised, c=alarm.get("confirmed_index"))
+        return (f"{what}; {how}; cleared at record {alarm.get('cleared_index')}: "
+                f"{alarm.get('cleared_because') or 'cleared'}")
+    verb = "decreased" if noun == "decrease" else "increased"
+    what = f"{q} {verb}" + (f" by {amount}" if amount else "") + when
+    if state == "confirmed":
+        return f"{what}; confirmed at record {alarm.get('confirmed_index')}"
+    return f"{what}; raised at record {alarm.get('raised_index')}, not yet confirmed"
 
 
 def change_point(z: Sequence[float | None], values: Sequence[float | None],

@@ -12,7 +12,13 @@ Layout: ``<data>/logs/<system>/<UTC start time>-<pid>.mcap``.  Topics (message e
   exactly as received (base64), their format, role, and the training epoch at arrival
 - ``/siva/dataset``    :class:`DatasetEvent` - (optional) the moment the trainer's data set
   changed: the epoch and the recording ids in use; replay prefers it over arrival epochs
+- ``/siva/anchor``     :class:`AnchorEvent` - the trainer entered (or re-anchored) the
+  output-error phase after ``epoch`` epochs: the anchor theta, the records and chain it was
+  linearised on, the bootstrap replicate count and seed (replay recomputes it exactly)
 - ``/siva/snapshot``   :class:`SnapshotEvent` - an estimate as served by GET .../estimate
+- ``/siva/repair``     :class:`RepairEvent` - start-up found the log behind the store and
+  repaired it (service/reconcile.py): what was missing, and - when the log can no longer
+  explain the checkpoint training resumes from - that trainer state, so replay starts there
 
 Recordings are logged as the original bytes (not re-encoded float arrays) so that a replay
 parses exactly what the live service parsed - bit-identical states - and the file stays
@@ -38,6 +44,7 @@ import io
 import json
 import logging
 import os
+import shutil
 import struct
 import threading
 import time
@@ -54,6 +61,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from siva_core import MCAP_MAGIC
 
+from .fingerprint import platform_fingerprint
+
 log = logging.getLogger("siva.mcap_log")
 
 FORMAT_VERSION = "siva-log/1"
@@ -61,6 +70,9 @@ TOPIC_SPEC = "/siva/spec"
 TOPIC_RECORDING = "/siva/recording"
 TOPIC_DATASET = "/siva/dataset"
 TOPIC_SNAPSHOT = "/siva/snapshot"
+TOPIC_ANCHOR = "/siva/anchor"
+TOPIC_REPAIR = "/siva/repair"
+PLATFORM_METADATA = "siva.platform"
 MAGIC = MCAP_MAGIC
 _FOOTER_OPCODE = 0x02
 _FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
@@ -90,6 +102,9 @@ class RecordingEvent(BaseModel):
     sha256: str
     data: str = Field(description="the uploaded bytes, base64 (RFC 4648)")
     wall_time: float
+    channel_map: dict[str, str] | None = Field(
+        None, description="the upload's ?map= channel renames (stored name -> column)")
+    units: dict[str, str] | None = Field(None, description="the upload's ?unit= declarations")
 
     def payload(self) -> bytes:
         """The uploaded bytes; checked against the logged hash so corruption is loud."""
@@ -108,6 +123,22 @@ class DatasetEvent(BaseModel):
     validation: list[str]
     processing: dict[str, Any] | None = Field(
         None, description="the processing chain's settings (siva_core Processing fields)")
+    wall_time: float
+
+
+class AnchorEvent(BaseModel):
+    """The output-error phase was anchored (linearised) before training epoch ``epoch + 1``."""
+
+    system: str
+    epoch: int = Field(ge=0, description="epochs completed when the anchor took effect")
+    theta: list[float] = Field(description="anchor parameters, in the model's free order")
+    train: list[str] = Field(description="records the output error was linearised on")
+    validation: list[str] = Field(description="records the discriminator judges")
+    processing: dict[str, Any] | None = None
+    source: str = Field(description="best (the first recommend_best) | headline | given")
+    n_noise: int = Field(ge=0, description="parametric-bootstrap replicates")
+    seed: int
+    resume: bool = Field(False, description="restored from a checkpoint (no state reset)")
     wall_time: float
 
 
@@ -136,11 +167,42 @@ class SnapshotEvent(BaseModel):
         return self.estimate.model_dump(mode="json")
 
 
+class RepairEvent(BaseModel):
+    """Start-up found this system's log behind the store (the truth) and repaired it.
+
+    ``recordings``: stored recordings the log lacked, logged just before this event.
+    ``baseline_*``: when the remaining log cannot reproduce the checkpoint the trainer
+    resumes from (its history was lost), that trainer state (``torch.save`` bytes, base64)
+    at ``baseline_epoch``: a replay starts from it instead of from scratch."""
+
+    system: str
+    reasons: list[str] = Field(description="what was found missing or inconsistent")
+    recordings: list[str] = Field(default_factory=list,
+                                  description="ids of the recordings logged by this repair")
+    baseline_epoch: int | None = Field(None, ge=0)
+    baseline_train: list[str] = Field(default_factory=list)
+    baseline_validation: list[str] = Field(default_factory=list)
+    baseline_sha256: str | None = None
+    baseline_state: str | None = Field(None, description="torch.save of the trainer state, base64")
+    wall_time: float
+
+    def state_bytes(self) -> bytes | None:
+        """The baseline trainer state; checked against its hash so corruption is loud."""
+        if self.baseline_state is None:
+            return None
+        raw = base64.b64decode(self.baseline_state)
+        if hashlib.sha256(raw).hexdigest() != self.baseline_sha256:
+            raise ValueError(f"repair of {self.system}: baseline state does not match its sha256")
+        return raw
+
+
 _TOPICS: dict[str, type[BaseModel]] = {
     TOPIC_SPEC: SpecEvent,
     TOPIC_RECORDING: RecordingEvent,
     TOPIC_DATASET: DatasetEvent,
     TOPIC_SNAPSHOT: SnapshotEvent,
+    TOPIC_ANCHOR: AnchorEvent,
+    TOPIC_REPAIR: RepairEvent,
 }
 
 
@@ -163,6 +225,8 @@ class _SystemLog:
             self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
             self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
                                                **{k: str(v) for k, v in metadata.items()}})
+            # what bit-identity of a replay depends on (service/fingerprint.py)
+            self._writer.add_metadata(PLATFORM_METADATA, platform_fingerprint())
             self._sync()
         except BaseException:  # e.g. disk full: leave no headless file behind
             self.abandon()
@@ -193,6 +257,10 @@ class _SystemLog:
                                  sequence=self._sequence[topic],
                                  data=event.model_dump_json().encode())
         self._sync()
+
+    def count(self, topic: str) -> int:
+        """Events of ``topic`` written to this file so far."""
+        return self._sequence.get(topic, 0)
 
     def _sync(self) -> None:
         self._fh.flush()
@@ -238,11 +306,25 @@ class EventLog:
             for p in sorted(self.root.glob("*/*.mcap")):
                 try:
                     if not is_finished(p) and not _writer_alive(p):
-                        self.recovered.append(recover(p))
+                        self.recovered.append(recover(p, keep_partial=False))
+                        log.warning("event log %s was unfinished (a crash): recovered", p)
                 except (OSError, McapError, ValueError) as exc:
                     log.warning("cannot recover %s: %s", p, exc)
+            # copies kept by earlier versions once their log is finished (the recovery
+            # itself is recorded in the finished file's siva.recovery metadata)
+            for p in sorted(self.root.glob("*/*.mcap.partial")):
+                done = p.with_name(p.name[:-len(".partial")])
+                try:
+                    if done.exists() and is_finished(done) and not _writer_alive(done):
+                        p.unlink()
+                except OSError as exc:
+                    log.warning("cannot remove %s: %s", p, exc)
 
     # -- public API
+    def folder(self, system: str) -> Path:
+        """The folder of ``system``'s log files (one per process start)."""
+        return self.root / _safe(system)
+
     def path(self, system: str) -> Path | None:
         """The file of ``system`` in this process, if one was opened."""
         with self._lock:
@@ -270,12 +352,16 @@ class EventLog:
                     sl.abandon()
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
-                      epoch: int, name: str | None = None) -> None:
+                      epoch: int, name: str | None = None,
+                      channel_map: Mapping[str, str] | None = None,
+                      units: Mapping[str, str] | None = None) -> None:
         raw = bytes(raw_bytes)
         ev = RecordingEvent(system=system, id=str(rec_id), role=_role(role), format=fmt,
                             epoch=int(epoch), name=name, size=len(raw),
                             sha256=hashlib.sha256(raw).hexdigest(),
-                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time())
+                            data=base64.b64encode(raw).decode("ascii"), wall_time=time.time(),
+                            channel_map=dict(channel_map) if channel_map else None,
+                            units=dict(units) if units else None)
         self._write(system, TOPIC_RECORDING, ev)
 
     def log_dataset(self, system: str, epoch: int, train_ids: Sequence[str],
@@ -291,11 +377,84 @@ class EventLog:
                           wall_time=time.time())
         self._write(system, TOPIC_DATASET, ev)
 
+    def log_anchor(self, system: str, epoch: int, anchor: Mapping[str, Any], *,
+                   resume: bool = False) -> None:
+        """Record that the trainer was anchored for the output-error phase after ``epoch``
+        completed epochs (``anchor``: trainer.anchoring.anchor_record)."""
+        ev = AnchorEvent(system=system, epoch=int(epoch),
+                         theta=[float(x) for x in anchor["theta"]],
+                         train=[str(i) for i in anchor["train"]],
+                         validation=[str(i) for i in anchor["validation"]],
+                         processing=anchor.get("processing"), source=str(anchor["source"]),
+                         n_noise=int(anchor["n_noise"]), seed=int(anchor["seed"]),
+                         resume=resume, wall_time=time.time())
+        self._write(system, TOPIC_ANCHOR, ev)
+
     def log_snapshot(self, system: str, snapshot_dict: Mapping[str, Any]) -> None:
         snap = json.loads(json.dumps(dict(snapshot_dict), default=_jsonable))
         ev = SnapshotEvent(system=system, epoch=int(snap.get("epoch", 0) or 0), estimate=snap,
                            wall_time=time.time())
         self._write(system, TOPIC_SNAPSHOT, ev)
+
+    def remove(self, system: str, *, archive: bool = False) -> dict[str, Any]:
+        """Finish the system's open file, then delete its log folder or, with ``archive``,
+        move it to ``<data>/archive/logs/<system>-<UTC time>/`` (outside ``logs/``: no
+        longer recovered at start-up, nor stitched into a new system of the same name).
+
+        Returns what was done: ``{"action": "deleted" | "archived" | "none", "files": n}``
+        (+ ``"archive"``, the folder relative to the data directory).  Raises OSError when
+        the disk refuses (the caller reports it; the files are then still there)."""
+        with self._lock:
+            sl = self._logs.pop(system, None)
+            self._specs.pop(system, None)
+        if sl is not None:
+            with sl.lock:
+                try:
+                    sl.close()
+                except OSError as exc:
+                    log.warning("cannot finish %s: %s", sl.path, exc)
+                    sl.abandon()
+        folder = self.root / _safe(system)
+        if not folder.is_dir():
+            return {"action": "none", "files": 0}
+        files = len(list(folder.glob("*.mcap")))
+        if not archive:
+            shutil.rmtree(folder)
+            return {"action": "deleted", "files": files}
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        dest = self.root.parent / "archive" / "logs" / f"{_safe(system)}-{stamp}"
+        while dest.exists():
+            dest = dest.with_name(dest.name + "x")
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(folder, dest)
+        return {"action": "archived", "files": files,
+                "archive": str(dest.relative_to(self.root.parent))}
+
+    def log_repair(self, system: str, reasons: Sequence[str], recordings: Sequence[str] = (),
+                   baseline: Mapping[str, Any] | None = None) -> None:
+        """Record a start-up repair (service/reconcile.py); ``baseline``: ``epoch``,
+        ``train``, ``validation`` and ``state`` (torch.save bytes of the trainer state)."""
+        kw: dict[str, Any] = {}
+        if baseline is not None:
+            raw = bytes(baseline["state"])
+            kw = dict(baseline_epoch=int(baseline["epoch"]),
+                      baseline_train=[str(i) for i in baseline.get("train", ())],
+                      baseline_validation=[str(i) for i in baseline.get("validation", ())],
+                      baseline_sha256=hashlib.sha256(raw).hexdigest(),
+                      baseline_state=base64.b64encode(raw).decode("ascii"))
+        ev = RepairEvent(system=system, reasons=list(reasons),
+                         recordings=[str(r) for r in recordings], wall_time=time.time(), **kw)
+        self._write(system, TOPIC_REPAIR, ev)
+
+    def position(self, system: str) -> dict[str, Any] | None:
+        """Where the log of ``system`` stands: its current file and how many data-set
+        events that file holds (a checkpoint keeps it, so start-up can tell whether the
+        log still explains the checkpoint)."""
+        with self._lock:
+            sl = self._logs.get(system)
+            if sl is None:
+                return None
+            return {"file": sl.path.name, "datasets": sl.count(TOPIC_DATASET)}
 
     def close(self) -> None:
         """Finish every file (summary + footer).  Idempotent."""
@@ -407,7 +566,7 @@ class LogEvent:
 
     topic: str
     log_time: int
-    event: SpecEvent | RecordingEvent | DatasetEvent | SnapshotEvent
+    event: SpecEvent | RecordingEvent | DatasetEvent | SnapshotEvent | RepairEvent
 
 
 def is_finished(path: str | Path) -> bool:
@@ -537,12 +696,26 @@ def read_events(path: str | Path) -> list[LogEvent]:
     return out
 
 
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The metadata records of a log by name (the first of each name; footer optional):
+    ``siva`` (format, system, settings), ``siva.platform`` (the fingerprint, logs written
+    since it was added), ``siva.recovery`` / ``siva.repair`` (what start-up fixed)."""
+    records, _kept = _good_bytes(Path(path).read_bytes())
+    out: dict[str, dict[str, str]] = {}
+    for rec in records:
+        if isinstance(rec, Metadata):
+            out.setdefault(rec.name, dict(rec.metadata))
+    return out
+
+
 # ------------------------------------------------------------------------ recovery
-def recover(path: str | Path) -> Path:
+def recover(path: str | Path, *, keep_partial: bool = True) -> Path:
     """Finish an unfinished log: keep every complete record, add summary and footer.
 
-    The original is kept next to it as ``<name>.partial``; the returned path (the original
-    name) is a finished MCAP file.  A file that is already finished is returned unchanged.
+    The original is kept next to it as ``<name>.partial`` unless ``keep_partial`` is false
+    (the service's start-up: what was kept is noted in the ``siva.recovery`` metadata);
+    the returned path (the original name) is a finished MCAP file.  A file that is already
+    finished is returned unchanged.
     """
     path = Path(path)
     if is_finished(path):
@@ -574,11 +747,22 @@ def recover(path: str | Path) -> Path:
                 w.add_message(channel_ids[rec.channel_id], log_time=rec.log_time,
                               publish_time=rec.publish_time, sequence=rec.sequence,
                               data=rec.data)
-        w.add_metadata("siva.recovery", {"from": path.name + ".partial",
+        w.add_metadata("siva.recovery", {"from": path.name + (".partial" if keep_partial
+                                                              else " (unfinished, removed)"),
                                          "bytes_kept": str(end), "bytes_total": str(len(raw))})
         w.finish()
         fh.flush()
         os.fsync(fh.fileno())
-    os.replace(path, path.with_name(path.name + ".partial"))
+    if keep_partial:
+        os.replace(path, path.with_name(path.name + ".partial"))
     os.replace(tmp, path)
+    _fsync_dir(path.parent)
     return path
+
+
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -14,7 +14,7 @@ import math
 import time
 from typing import Any, Iterator, Mapping
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily
@@ -95,6 +95,21 @@ class SystemsCollector:
                                       "of the estimate", labels=["system", "mode"]),
             "zeta": GaugeMetricFamily("siva_damping_ratio", "damping ratio of the estimate",
                                       labels=["system", "mode"]),
+            "val_t": GaugeMetricFamily("siva_validation_statistic", "held-out test T = residual "
+                                       "power / measurement-noise power (1 = explains all but "
+                                       "the noise), pooled or per validation record",
+                                       labels=["system", "of", "record"]),
+            "val_p": GaugeMetricFamily("siva_validation_p_value", "p-value of the held-out test "
+                                       "(H0: unexplained power <= tolerance x noise)",
+                                       labels=["system", "of", "record"]),
+            "val_rej": GaugeMetricFamily("siva_model_rejected", "1 when the validation test "
+                                         "rejects the model (headline, else ensemble), 0 when it "
+                                         "accepts it; absent before the first test",
+                                         labels=["system"]),
+            "ens_final": GaugeMetricFamily("siva_ensemble_final", "1 once the running SIVA "
+                                           "ensemble is final (output-error phase converged, "
+                                           "with a 95 % interval), 0 while provisional",
+                                           labels=["system"]),
             "recs": GaugeMetricFamily("siva_recordings", "stored recordings by role",
                                       labels=["system", "role"]),
             "age": GaugeMetricFamily("siva_snapshot_timestamp_seconds", "unix time of the "
@@ -136,6 +151,24 @@ class SystemsCollector:
                                               float(ALARM_LEVEL.get(state, 0)))
         for p, lvl in levels.items():
             fam["alarm"].add_metric([name, p], lvl)
+        val = snap.get("validation")
+        if isinstance(val, Mapping):
+            if val.get("verdict") in ("accepted", "rejected"):
+                fam["val_rej"].add_metric([name], 1.0 if val["verdict"] == "rejected" else 0.0)
+            for of in ("headline", "ensemble"):
+                test = val.get(of)
+                if not isinstance(test, Mapping):
+                    continue
+                rows = [("all", test.get("T"), test.get("p_value"))] + [
+                    (str(r.get("record")), r.get("T"), r.get("p_value"))
+                    for r in test.get("per_record") or [] if isinstance(r, Mapping)]
+                for rec, t_val, p_val in rows:
+                    if _num(t_val) is not None:
+                        fam["val_t"].add_metric([name, of, rec], float(t_val))
+                    if _num(p_val) is not None:
+                        fam["val_p"].add_metric([name, of, rec], float(p_val))
+        if snap.get("ensemble_state") is not None:
+            fam["ens_final"].add_metric([name], 1.0 if snap["ensemble_state"] == "final" else 0.0)
         spe = _num(snap.get("seconds_per_epoch"))
         if spe:
             fam["eps"].add_metric([name], 1.0 / spe)
@@ -174,7 +207,9 @@ def install(app: FastAPI, service: Any) -> None:
     registry.register(SystemsCollector(service))
     app.state.metrics_registry = registry
 
-    @app.get("/metrics", include_in_schema=False)
+    from .routes import require_read_token  # reads behind the token when asked (issue 19)
+
+    @app.get("/metrics", include_in_schema=False, dependencies=[Depends(require_read_token)])
     async def metrics(request: Request) -> Response:
         return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 

@@ -60,6 +60,9 @@ class EventQueue:
     def log_snapshot(self, *args: Any, **kw: Any) -> None:
         self._put("log_snapshot", args, kw)
 
+    def log_anchor(self, *args: Any, **kw: Any) -> None:
+        self._put("log_anchor", args, kw)
+
     def pending(self, acked: int) -> list[tuple[int, str, tuple[Any, ...], dict[str, Any]]]:
         """Forget what the front acknowledged (seq <= ``acked``); the rest, in order."""
         with self._lock:

@@ -3,8 +3,11 @@
 Why: an estimate the service published should be reproducible by anyone holding the log -
 to audit it, to re-run it with a fixed bug, or to reproduce a drift alarm.  The service is
 deterministic given (spec, trainer preset and seed, the data set used at each epoch), and
-the log holds all three, so a replay reproduces the live estimate exactly, not merely within
-the ensemble's spread (tests/service/test_replay.py checks this on checked-in logs).
+the log holds all three, so on the same platform a replay reproduces the live estimate
+bit for bit.  On another platform (library builds, CPU kernels: service/fingerprint.py, which
+every log records) float rounding differs and training amplifies it; the replay then says
+``reproduced`` when it lands within a stated tolerance of the published spread, else
+``differs`` with where (``compared_to_log.verdict``).
 
 How: the spec event rebuilds the Structure; a fresh trainer (the service's own factory,
 preset and seed from the log) is trained epoch by epoch; at each ``/siva/dataset`` event
@@ -26,14 +29,20 @@ train and validation by role, all of them - an approximation of the service's bu
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .mcap_log import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC, LogEvent,
-                       RecordingEvent, SnapshotEvent, SpecEvent, read_events)
+from .mcap_log import (PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING,
+                       TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, AnchorEvent, LogEvent,
+                       RecordingEvent, RepairEvent, SnapshotEvent, SpecEvent, read_events,
+                       read_metadata)
+from .replay_verdict import (REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison,
+                             summary_line)
+
+__all__ = ["REPRODUCED_TOLERANCE_IN_STD", "ReplayError", "explains", "log_files", "replay",
+           "summary_line", "write_replay"]
 
 
 class ReplayError(ValueError):
@@ -60,6 +69,7 @@ class _DataSet:
     train: list[str]
     validation: list[str]
     processing: dict[str, Any] | None = None
+    anchor: AnchorEvent | None = None  # not a data set: the output-error phase's anchor
 
 
 @dataclass
@@ -74,6 +84,9 @@ class _Plan:
     counts: dict[str, int]
     files: list[str] = field(default_factory=list)
     exact: bool = True
+    platforms: list[dict[str, str] | None] = field(default_factory=list)  # per file
+    # restart index -> the repair whose baseline trainer state that block starts from
+    baselines: dict[int, RepairEvent] = field(default_factory=dict)
 
 
 def log_files(path: str | Path | Sequence[str | Path]) -> list[Path]:
@@ -97,9 +110,20 @@ def log_files(path: str | Path | Sequence[str | Path]) -> list[Path]:
 
 def _plan(files: Sequence[Path]) -> _Plan:
     segments = [_Segment(f, read_events(f)) for f in files]
+    platforms = [read_metadata(f).get(PLATFORM_METADATA) for f in files]
     spec: SpecEvent | None = None
     recordings: dict[str, RecordingEvent] = {}
     systems: set[str] = set()
+    # a repair's baseline supersedes every earlier file (their training history is what
+    # the repair found lost); they still lend their recordings, the same bytes by id
+    first = max((k for k, seg in enumerate(segments)
+                 if any(r.baseline_state is not None for r in seg.of(TOPIC_REPAIR))), default=0)
+    for seg in segments[:first]:
+        systems.update(e.event.system for e in seg.events)
+        for ev in seg.of(TOPIC_RECORDING):
+            recordings.setdefault(ev.id, ev)
+    segments = segments[first:]
+    platforms = platforms[first:]
     for seg in segments:
         systems.update(e.event.system for e in seg.events)
         for ev in seg.of(TOPIC_SPEC):
@@ -124,12 +148,27 @@ def _plan(files: Sequence[Path]) -> _Plan:
             [r for seg in segments for r in seg.of(TOPIC_RECORDING)])
         snaps = [s for seg in segments for s in seg.of(TOPIC_SNAPSHOT)]
         final_snap = snaps[-1] if snaps else None
+    baselines: dict[int, RepairEvent] = {}
     for seg in segments if exact else []:
         seg_sets = _segment_datasets(seg, final=seg is segments[-1])
         snaps = seg.of(TOPIC_SNAPSHOT)
+        base = next((r for r in seg.of(TOPIC_REPAIR) if r.baseline_state is not None), None)
+        if base is not None:
+            # start-up repaired a log that could not explain the checkpoint: training
+            # resumed from this logged state, so the replay does too (and what came before
+            # is superseded)
+            seg_sets = [d for d in seg_sets if d.epoch >= (base.baseline_epoch or 0)]
+            if datasets:
+                restarts.append(len(datasets))
+            baselines[restarts[-1]] = base
+            datasets.extend(seg_sets)
+            final_snap = None
+            if snaps:
+                final_snap = snaps[-1]
+            continue
         if seg_sets:
             start = seg_sets[0].epoch
-            if not datasets and start > 0:
+            if not datasets and start > 0 and not baselines:
                 raise ReplayError(f"{seg.path}: the service resumed from a checkpoint at epoch "
                                   f"{start}; pass the earlier logs of this system too "
                                   "(e.g. its log folder)")
@@ -154,7 +193,7 @@ def _plan(files: Sequence[Path]) -> _Plan:
     if final_snap is not None:
         counts = {k: int(v) for k, v in final_snap.estimate.n_recordings.items()}
     return _Plan(spec, recordings, datasets, restarts, final_epoch, final_snap, counts,
-                 [str(f) for f in files], exact)
+                 [str(f) for f in files], exact, platforms, baselines)
 
 
 def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
@@ -171,6 +210,10 @@ def _segment_datasets(seg: _Segment, final: bool = False) -> list[_DataSet]:
         last_snap = max((k for k, le in enumerate(seg.events) if le.topic == TOPIC_SNAPSHOT),
                         default=last_snap)
     for k, le in enumerate(seg.events[:last_snap]):
+        if le.topic == TOPIC_ANCHOR:
+            a = le.event
+            out.append(_DataSet(a.epoch, list(a.train), list(a.validation), a.processing, a))
+            continue
         if le.topic != TOPIC_DATASET:
             continue
         d = le.event
@@ -226,7 +269,7 @@ class _Replayer:
     def __init__(self, plan: _Plan, trainer_factory: Any = None) -> None:
         from siva_core import Structure
 
-        from .worker import default_trainer
+        from .trainer import default_trainer
 
         self.plan = plan
         self.structure = Structure.from_dict(plan.spec.spec)
@@ -244,8 +287,9 @@ class _Replayer:
                                   "log(s): pass the system's earlier logs too (its log folder)")
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                self._recs[rid] = Recording.read(ev.payload(), self.structure.dofs, name=rid,
-                                                 fmt=ev.format)
+                self._recs[rid] = Recording.read(
+                    ev.payload(), self.structure.dofs, name=rid, fmt=ev.format,
+                    **self.structure.read_options(ev.channel_map, ev.units))
         return self._recs[rid]
 
     def states(self, ds: _DataSet) -> tuple[list[Any], list[Any]]:
@@ -268,6 +312,20 @@ class _Replayer:
         st = {r.name: proc.apply(r, self.structure.dofs) for r in recs}
         return [st[i] for i in train], [st[i] for i in val]
 
+    def anchor(self, trainer: Any, ev: AnchorEvent) -> None:
+        """The live trainer's output-error anchor, recomputed from the logged records."""
+        import numpy as np
+
+        from .trainer.anchoring import linearize_anchor, processing_from
+
+        if ev.resume and getattr(trainer, "oe", None) is not None:
+            return  # restored from a checkpoint: this replay's trainer never lost it
+        lin_tr, lin_va = linearize_anchor(
+            self.structure, np.asarray(ev.theta, dtype=float),
+            [self.recording(i) for i in ev.train], [self.recording(i) for i in ev.validation],
+            processing_from(ev.processing), n_noise=ev.n_noise, seed=ev.seed)
+        trainer.use_output_error(lin_tr, lin_va, resume=ev.resume)
+
     def run(self) -> tuple[Any, Any]:
         """Train to the final epoch; returns (trainer, last EpochLog or None)."""
         plan = self.plan
@@ -279,15 +337,73 @@ class _Replayer:
             if not block:
                 continue
             trainer = self.factory(self.structure, self.settings)
+            base = plan.baselines.get(bounds[k])
+            if base is not None:
+                trainer.load_state_dict(_load_state(base))
             last_log = None
+            last_block = k == len(plan.restarts) - 1
             for ds in block:
+                if (last_block and plan.final_snapshot is not None and 0 < plan.final_epoch
+                        <= ds.epoch):
+                    # the live trainer publishes after epoch E and applies what arrived
+                    # between epochs E and E + 1 afterwards: the final snapshot predates it
+                    break
                 while trainer.epoch < ds.epoch:
                     last_log = trainer.run_epoch()
-                trainer.set_data(*self.states(ds))
+                if ds.anchor is not None:
+                    self.anchor(trainer, ds.anchor)
+                else:
+                    trainer.set_data(*self.states(ds))
         if trainer is not None:
             while trainer.epoch < plan.final_epoch:
                 last_log = trainer.run_epoch()
         return trainer, last_log
+
+
+def _load_state(base: RepairEvent) -> dict[str, Any]:
+    """The baseline trainer state of a repair; loaded with torch's restricted unpickler
+    (tensors, plain containers and the numpy arrays a trainer state holds - nothing that
+    runs code), so a log from elsewhere cannot execute anything."""
+    import io
+
+    import numpy as np
+    import torch
+
+    raw = base.state_bytes()
+    assert raw is not None
+    allowed = [np.core.multiarray._reconstruct, np.ndarray, np.dtype,
+               type(np.dtype("float64")), type(np.dtype("uint32")), type(np.dtype("int64")),
+               type(np.dtype("bool")), type(np.dtype("float32")), type(np.dtype("int32"))]
+    with torch.serialization.safe_globals(allowed):
+        try:
+            return torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - say which log holds the bad state
+            raise ReplayError(f"repair of {base.system} at epoch {base.baseline_epoch}: its "
+                              f"baseline trainer state cannot be loaded ({exc})") from exc
+
+
+def explains(files: Sequence[Path], epoch: int, train: Sequence[str],
+             validation: Sequence[str], available: Iterable[str] = ()) -> str | None:
+    """Whether these logs reproduce a trainer resumed at ``epoch`` with this data set:
+    None when they do, else why not (used by start-up reconciliation; ``available``:
+    recording ids about to be logged, which count as present)."""
+    try:
+        plan = _plan(files)
+    except ReplayError as exc:
+        return str(exc)
+    block = plan.datasets[plan.restarts[-1]:]
+    before = [d for d in block if d.epoch <= epoch]
+    if not before:
+        return f"no data set logged at or before the checkpoint's epoch {epoch}"
+    last = before[-1]
+    if (last.train, last.validation) != (list(train), list(validation)):
+        return (f"the data set logged last before epoch {epoch} (at {last.epoch}) is not the "
+                "one the checkpoint trained on")
+    have = set(plan.recordings) | set(available)
+    missing = [r for d in before for r in d.train + d.validation if r not in have]
+    if missing:
+        return f"recordings used before epoch {epoch} are not in the log: {sorted(set(missing))}"
+    return None
 
 
 def _counting(factory: Any, progress: Any) -> Any:
@@ -307,14 +423,18 @@ def _counting(factory: Any, progress: Any) -> Any:
 
 
 def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = None,
-           progress: bool = False) -> dict[str, Any]:
+           progress: bool = False,
+           tolerance_in_std: float = REPRODUCED_TOLERANCE_IN_STD) -> dict[str, Any]:
     """Re-run the log(s) and return the final estimate in the shape of GET .../estimate.
 
     Extra key ``replay``: the files, the epochs trained, and how the result compares with
-    the last snapshot the live service logged (``max_diff_in_std``: the largest difference
-    of a parameter mean, in units of that parameter's std; 0 when identical).
+    the last snapshot the live service logged (``compared_to_log``: ``identical`` bits,
+    ``max_diff_in_std`` - the largest difference of a parameter mean, in units of that
+    parameter's std, 0 when identical - and the ``verdict`` identical / reproduced /
+    differs, with the platform comparison that says which one was to be expected).
     """
-    from .estimate import estimate_parameters, estimate_view, jsonable
+    from .estimate import estimate_view, jsonable
+    from .trainer.readout import read_ensemble
 
     files = log_files(path)
     plan = _plan(files)
@@ -327,18 +447,21 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     if trainer is None:
         raise ReplayError(f"{', '.join(plan.files)}: the log has no training (no data set with "
                           "both a train and a validation recording)")
-    params, source = estimate_parameters(rp.structure, trainer)  # the service's own read-out
+    ens = read_ensemble(rp.structure, trainer)  # the service's own read-out
     disc = trainer.discriminator_scores() if trainer.epoch > 0 else {}
-    snap = {"parameters": params, "estimate_source": source, "discriminator": disc,
+    snap = {"parameters": ens.to_json(), "estimate_source": ens.source, "discriminator": disc,
             "epoch": int(trainer.epoch), "converged": bool(trainer.converged),
-            "system": plan.spec.system, "ensemble": params, "ensemble_source": source,
+            "system": plan.spec.system, "ensemble": ens.to_json(), "ensemble_source": ens.source,
+            "ensemble_state": ens.state, "phase": ens.phase,
             **_logged_monitoring(plan.final_snapshot)}
     out = jsonable(estimate_view(snap, plan.counts))
     out["replay"] = jsonable({
         "files": plan.files, "epochs": int(trainer.epoch),
         "data_changes": len(plan.datasets), "exact": plan.exact,
         "settings": plan.spec.settings,
-        "compared_to_log": _compare(out, plan.final_snapshot),
+        "compared_to_log": compare_to_log(out, plan.final_snapshot,
+                                          platform_comparison(plan.platforms),
+                                          tolerance_in_std),
     })
     return out
 
@@ -352,7 +475,9 @@ def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
     if snap is None:
         return {}
     est = snap.estimate_dict()
-    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate")
+    out = {k: est[k] for k in ("best", "alarms", "alarm_history", "monitoring", "estimate",
+                               "validation", "model_rejected", "provisional", "agreement",
+                               "drift_status")
            if k in est}
     if est.get("estimate_source") == "best":
         out.update(parameters=est.get("parameters") or {}, estimate_source="best")
@@ -361,36 +486,19 @@ def _logged_monitoring(snap: SnapshotEvent | None) -> dict[str, Any]:
     return out
 
 
-def _compare(out: dict[str, Any], snap: SnapshotEvent | None) -> dict[str, Any] | None:
-    if snap is None:
-        return None
-    est = snap.estimate_dict()
-    logged = est.get("ensemble") or est.get("parameters") or {}
-    worst = 0.0
-    identical = snap.epoch == out["epoch"]
-    for p, s in (out.get("ensemble") or out["parameters"]).items():
-        ref = logged.get(p)
-        if not ref or ref.get("mean") is None or s.get("mean") is None:
-            identical = False
-            continue
-        d = abs(float(s["mean"]) - float(ref["mean"]))
-        identical &= d == 0.0 and s.get("std") == ref.get("std")
-        std = max(float(ref.get("std") or 0.0), 1e-300)
-        worst = max(worst, d / std if d else 0.0)
-    return {"epoch": snap.epoch, "identical": bool(identical),
-            "max_diff_in_std": worst if math.isfinite(worst) else None}
-
-
-def write_replay(log: str | Path, out: str | Path | None = None) -> dict[str, Any]:
-    """``siva replay LOG [--out FILE]``: JSON to ``out`` or stdout (used by service.cli)."""
+def write_replay(log: str | Path, out: str | Path | None = None,
+                 tolerance_in_std: float = REPRODUCED_TOLERANCE_IN_STD) -> dict[str, Any]:
+    """``siva replay LOG [--out FILE]``: JSON to ``out`` or stdout, the verdict on stderr
+    (used by service.cli)."""
     import json
     import sys
 
-    result = replay(log, progress=True)
+    result = replay(log, progress=True, tolerance_in_std=tolerance_in_std)
     text = json.dumps(result, indent=2)
     if out:
         Path(out).write_text(text + "\n")
     else:
         sys.stdout.write(text + "\n")
+    sys.stderr.write(summary_line(result) + "\n")
     return result
 

@@ -5,18 +5,21 @@ reads return the worker's latest published snapshot, so no route ever waits for 
 """
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hmac
-from typing import Any
+from typing import Any, AsyncIterator
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from siva_core import media_types, resolve_format
+from siva_core import media_types, parse_pairs, resolve_format
 
 from .errors import ApiError, UploadTooLarge
 from .limits import LimitError, parse_spec_body
+from .security import cross_site
 from .schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                       RecordingList, SystemAck, SystemList, SystemSpec)
 from .store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
@@ -25,18 +28,33 @@ from .estimate import estimate_view
 
 router = APIRouter()
 
-_ERRORS: dict[int | str, dict[str, Any]] = {
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorDetail, "description": text} for code, text in {
         400: "unreadable body: malformed JSON, TOML or multipart, a bad Content-Length",
         401: "no or a wrong bearer token (when SIVA_API_TOKEN is set; reads too with "
              "SIVA_API_TOKEN_READS=1)",
+        403: "a cross-site write from a browser (Origin / Sec-Fetch-Site of another site)",
         404: "unknown system or recording",
         409: "conflicting spec or role",
-        413: "body above SIVA_MAX_UPLOAD_BYTES",
+        413: "body above SIVA_MAX_UPLOAD_BYTES, or a recording above the read limits",
         415: "unsupported content type",
+        421: "a Host header this service does not answer to (SIVA_ALLOWED_HOSTS)",
         422: "invalid spec, recording or parameter; the detail names what and where",
+        503: "too many uploads being parsed at once: retry after Retry-After seconds",
         507: "the data directory is full or read-only: nothing was changed",
     }.items()}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """The error responses of a route (every route may answer 421 for a foreign Host)."""
+    return {c: ERROR_RESPONSES[c] for c in sorted({*codes, 421})}
+
+
+#: what a read of one system answers beyond 200
+READ_ERRORS = errors(401, 404, 409, 422)
+#: what a write answers beyond its 2xx
+WRITE_ERRORS = errors(400, 401, 403, 404, 409, 413, 415, 422, 507)
+_ERRORS = WRITE_ERRORS
 
 CONTENT_FORMATS = media_types()
 
@@ -49,6 +67,16 @@ def service_of(request: Request) -> Any:
 def require_token(request: Request) -> None:
     """Writes need ``Authorization: Bearer <SIVA_API_TOKEN>`` when the token is set."""
     _check_token(request, "writes")
+
+
+def require_write_rights(request: Request, what: str) -> None:
+    """A write hidden in a GET (starting a diagnosis): the token when one is set, and no
+    cross-site browser request (the middleware checks only unsafe methods)."""
+    _check_token(request, "writes")
+    origins = [o for o in request.app.state.settings.allowed_origins.split(",") if o.strip()]
+    why = cross_site({k.lower(): v for k, v in request.headers.items()}, origins)
+    if why:
+        raise ApiError(403, f"{what} is a write: cross-site request refused ({why})")
 
 
 def require_read_token(request: Request) -> None:
@@ -97,7 +125,7 @@ async def healthz(request: Request) -> Response:
 
 
 @router.get("/v1/systems", response_model=SystemList, tags=["systems"],
-            dependencies=[Depends(require_read_token)])
+            responses=errors(401), dependencies=[Depends(require_read_token)])
 async def list_systems(request: Request) -> dict[str, Any]:
     svc = service_of(request)
     out = []
@@ -119,7 +147,7 @@ async def list_systems(request: Request) -> dict[str, Any]:
 @router.put("/v1/systems/{name}", tags=["systems"], status_code=201,
             response_model=SystemAck,
             responses={200: {"model": SystemAck, "description": "the same spec was already there"},
-                       **_ERRORS},
+                       **errors(400, 401, 403, 413, 415, 422, 507)},
             openapi_extra={"requestBody": {"required": True, "content": {
                 "application/json": {"schema": SystemSpec.model_json_schema()},
                 "application/toml": {"schema": {"type": "string"}}}}},
@@ -150,30 +178,43 @@ async def put_system(name: str, request: Request) -> Response:
     return JSONResponse(body, status_code=201 if created else 200)
 
 
-@router.get("/v1/systems/{name}", tags=["systems"], responses=_ERRORS,
+@router.get("/v1/systems/{name}", tags=["systems"], responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def get_system(name: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
     w = svc.worker(name)
     snap = w.snapshot()
     return {"name": name, "spec": svc.store.spec(name), "dofs": w.structure.dofs,
-            "free_parameters": w.structure.free, "state": snap.get("state"),
+            "free_parameters": w.structure.free,
+            "parameter_units": w.structure.parameter_units(), "state": snap.get("state"),
             "epoch": snap.get("epoch", 0), "converged": snap.get("converged", False),
             "n_recordings": svc.counts(name)}
 
 
-@router.delete("/v1/systems/{name}", tags=["systems"], responses=_ERRORS,
+@router.delete("/v1/systems/{name}", tags=["systems"],
+               responses=errors(401, 403, 404, 422, 507),
                dependencies=[Depends(require_token)])
-async def delete_system(name: str, request: Request) -> dict[str, Any]:
-    """Stop the worker and remove the system with all its recordings (irreversible)."""
+async def delete_system(
+    name: str, request: Request,
+    logs: str = Query("delete", description="the system's MCAP event logs: delete (default) "
+                                            "or archive (moved to <data>/archive/logs/)"),
+) -> dict[str, Any]:
+    """Stop the worker and remove the system with all its recordings (irreversible), and
+    its MCAP event logs: deleted, or archived with ``?logs=archive``; ``logs`` in the answer
+    says which (``action``: deleted | archived | none | kept, ``files``, ``archive``)."""
     check_name(name)
-    await run_in_threadpool(service_of(request).delete_system, name)
-    return {"deleted": name}
+    mode = logs.strip().lower()
+    if mode not in ("delete", "archive"):
+        raise ApiError(422, f"query parameter logs={logs!r}: must be 'delete' or 'archive'")
+    done = await run_in_threadpool(service_of(request).delete_system, name,
+                                   archive_logs=mode == "archive")
+    return {"deleted": name, **done}
 
 
 # --------------------------------------------------------------------------- recordings
 @router.post("/v1/systems/{name}/recordings", tags=["recordings"], status_code=202,
-             response_model=RecordingAck, responses=_ERRORS,
+             response_model=RecordingAck,
+             responses=errors(400, 401, 403, 404, 409, 413, 415, 422, 503, 507),
              openapi_extra={"requestBody": {"required": True, "content": {
                  "text/csv": {"schema": {"type": "string"}},
                  "application/json": {"schema": {"type": "object", "description":
@@ -191,12 +232,93 @@ async def post_recording(
                                                  "Content-Type or file name"),
     filename: str | None = Query(None, alias="name",
                                  description="a name for the record, used in messages"),
+    map_: list[str] | None = Query(None, alias="map",
+                                   description="SRC=DST, repeatable: read the file's channel "
+                                               "SRC as column DST (e.g. 'Accel LO=acc_LO'); "
+                                               "over the spec's [channels] map"),
+    unit: list[str] | None = Query(None, description="COL=UNIT, repeatable: the unit a column "
+                                                     "was recorded in (e.g. acc_LO=g), "
+                                                     "converted to SI"),
 ) -> Response:
     """Upload one recording; 202 only once it is durably stored (temp, fsync, rename)."""
     svc = service_of(request)
     svc.worker(name)  # 404 before reading a body for nothing
     role = _role(role)
     fmt = _format(format) if format else None
+    try:
+        cmap, units = parse_pairs(map_, "map"), parse_pairs(unit, "unit")
+    except ValueError as exc:
+        raise ApiError(422, f"query parameter {exc}") from None
+    async with upload_slot(request):  # the body stays in the socket until there is room
+        return await _receive_recording(svc, name, request, role, fmt, filename,
+                                        cmap or None, units or None)
+
+
+class UploadSlots:
+    """Uploads in flight, bounded in number *and* in declared body bytes: many small
+    uploads run side by side, large ones take turns (memory follows the bytes)."""
+
+    def __init__(self, count: int, budget: int) -> None:
+        self.count, self.budget = count, budget
+        self.used, self.used_bytes = 0, 0
+        self.cond = asyncio.Condition()
+
+    def _fits(self, nbytes: int) -> bool:
+        return self.used < self.count and (self.used == 0 or
+                                           self.used_bytes + nbytes <= self.budget)
+
+    async def acquire(self, nbytes: int, timeout: float) -> None:
+        async with self.cond:
+            if not self._fits(nbytes):
+                if timeout <= 0:
+                    raise asyncio.TimeoutError
+                await asyncio.wait_for(self.cond.wait_for(lambda: self._fits(nbytes)),
+                                       timeout)
+            self.used += 1
+            self.used_bytes += nbytes
+
+    async def release(self, nbytes: int) -> None:
+        async with self.cond:
+            self.used -= 1
+            self.used_bytes -= nbytes
+            self.cond.notify_all()
+
+
+@contextlib.asynccontextmanager
+async def upload_slot(request: Request) -> AsyncIterator[None]:
+    """At most SIVA_MAX_CONCURRENT_UPLOADS recordings, declaring at most
+    SIVA_UPLOAD_BYTES_IN_FLIGHT body bytes together (a body without Content-Length counts
+    as SIVA_MAX_UPLOAD_BYTES), are read and parsed at once, so memory and CPU stay bounded
+    whatever the number of clients; a request waits up to SIVA_UPLOAD_QUEUE_S for room,
+    then gets 503 with Retry-After.  The body stays in the socket while it waits."""
+    settings = request.app.state.settings
+    slots = getattr(request.app.state, "upload_slots", None)
+    if slots is None:
+        slots = request.app.state.upload_slots = UploadSlots(
+            settings.max_concurrent_uploads, settings.upload_bytes_in_flight)
+    try:
+        declared = int(request.headers.get("content-length", ""))
+    except ValueError:
+        declared = settings.max_upload_bytes
+    nbytes = max(0, min(declared, settings.max_upload_bytes))
+    try:
+        await slots.acquire(nbytes, settings.upload_queue_s)
+    except asyncio.TimeoutError:
+        raise ApiError(503, f"too many uploads in flight ({slots.used}, "
+                            f"{slots.used_bytes / 2**20:.0f} MiB declared) and no room within "
+                            f"{settings.upload_queue_s:g} s; retry later "
+                            "(SIVA_MAX_CONCURRENT_UPLOADS, SIVA_UPLOAD_BYTES_IN_FLIGHT, "
+                            "SIVA_UPLOAD_QUEUE_S)", headers={"Retry-After": "5"}) from None
+    try:
+        yield
+    finally:
+        await slots.release(nbytes)
+
+
+async def _receive_recording(svc: Any, name: str, request: Request, role: str | None,
+                             fmt: str | None, filename: str | None,
+                             cmap: dict[str, str] | None = None,
+                             units: dict[str, str] | None = None) -> Response:
     media = _media_type(request)
     if media == "multipart/form-data":
         raw, part_name, part_type, form_role = await _multipart(request)
@@ -213,7 +335,7 @@ async def post_recording(
     if not raw:
         raise ApiError(422, f"{filename}: empty body, expected a recording")
     ack = await run_in_threadpool(svc.add_recording, name, raw, role=role, fmt=fmt,
-                                  filename=filename)
+                                  filename=filename, channel_map=cmap, units=units)
     return JSONResponse(ack, status_code=202)
 
 
@@ -263,7 +385,7 @@ async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, A
 
 
 @router.get("/v1/systems/{name}/recordings", tags=["recordings"], response_model=RecordingList,
-            responses=_ERRORS,
+            responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def list_recordings(name: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
@@ -279,7 +401,7 @@ async def list_recordings(name: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/v1/systems/{name}/recordings/{rid}", tags=["recordings"],
-            response_model=RecordingInfo, responses=_ERRORS,
+            response_model=RecordingInfo, responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def get_recording(name: str, rid: str, request: Request) -> dict[str, Any]:
     svc = service_of(request)
@@ -299,7 +421,7 @@ async def get_recording(name: str, rid: str, request: Request) -> dict[str, Any]
                              "content": {t: {"schema": {"type": "string", "format": "binary"}}
                                          for t in ("text/csv", "application/json",
                                                    "application/x-npz", "application/x-mcap")}},
-                       **_ERRORS},
+                       **READ_ERRORS},
             dependencies=[Depends(require_read_token)])
 async def get_recording_raw(name: str, rid: str, request: Request) -> Response:
     """The stored bytes, exactly as uploaded."""
@@ -317,7 +439,7 @@ async def get_recording_raw(name: str, rid: str, request: Request) -> Response:
 
 # --------------------------------------------------------------------------- estimate, drift
 @router.get("/v1/systems/{name}/estimate", tags=["estimate"], response_model=Estimate,
-            responses=_ERRORS,
+            responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def get_estimate(name: str, request: Request) -> dict[str, Any]:
     """The latest published estimate (never waits for training)."""
@@ -327,7 +449,7 @@ async def get_estimate(name: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/v1/systems/{name}/drift", tags=["estimate"], response_model=DriftReport,
-            responses=_ERRORS,
+            responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def get_drift(name: str, request: Request,
                     limit: int | None = Query(None, ge=1, description="last N snapshots only")
@@ -340,7 +462,7 @@ async def get_drift(name: str, request: Request,
 
 
 @router.post("/v1/systems/{name}/drift/reset", tags=["estimate"], response_model=DriftReport,
-             responses=_ERRORS, dependencies=[Depends(require_token)])
+             responses=errors(401, 403, 404, 409), dependencies=[Depends(require_token)])
 async def reset_drift(name: str, request: Request) -> dict[str, Any]:
     """Forget the drift reference and alarms (e.g. after a repair); history is kept."""
     w = service_of(request).worker(name)

@@ -127,6 +127,20 @@ class Estimate(_Open):
         None, description="the running Approach II ensemble {mean, std, ci95, ess, n}")
     best: Best | None = Field(None, description="the output-error estimate (null until the "
                                                 "first one finished)")
+    provisional: bool | None = Field(None, description="true while the headline is neither "
+                                     "best nor a final ensemble: then no ci95 (null)")
+    ensemble_state: str | None = Field(None, description="provisional | final (only a final "
+                                       "ensemble has ci95)")
+    phase: str | None = Field(None, description="equation_error | output_error")
+    validation: dict[str, Any] | None = Field(
+        None, description="the held-out test: verdict (accepted | rejected | null), T, "
+                          "p_value, per_record, headline, ensemble, discriminator (its own "
+                          "numbers, labelled)")
+    model_rejected: bool | None = Field(None, description="validation.verdict == rejected")
+    agreement: dict[str, Any] | None = Field(None, description="ensemble vs headline: agree | "
+                                             "differ (with why) | pending | n/a")
+    drift_status: dict[str, Any] | None = Field(None, description="too_short | forming | "
+                                                "monitoring, in words")
 
 
 class ChangePoint(_Open):
@@ -151,11 +165,15 @@ class Alarm(_Open):
 
 
 class Snapshot(_Open):
+    """One published estimate: the headline (``parameters``) and the running ensemble, each
+    {mean, std, ci95} (ci95 null while provisional)."""
+
     epoch: int
     time: float
-    converged: bool
-    recent: dict[str, float | None]
+    converged: bool | None = None
     parameters: dict[str, dict[str, Any]]
+    ensemble: dict[str, dict[str, Any]] | None = None
+    ensemble_state: str | None = None
     modal: dict[str, list[float | None]] | None = None
 
 

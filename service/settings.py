@@ -58,6 +58,11 @@ ENV_VARS: dict[str, str] = {
     "SIVA_RAY_CPUS_PER_ACTOR": "ray_cpus_per_actor",
     "SIVA_RAY_POLL_S": "ray_poll_s",
     "SIVA_RAY_KEEP_ACTORS": "ray_keep_actors",
+    "SIVA_ALLOWED_HOSTS": "allowed_hosts",
+    "SIVA_ALLOWED_ORIGINS": "allowed_origins",
+    "SIVA_MAX_CONCURRENT_UPLOADS": "max_concurrent_uploads",
+    "SIVA_UPLOAD_QUEUE_S": "upload_queue_s",
+    "SIVA_UPLOAD_BYTES_IN_FLIGHT": "upload_bytes_in_flight",
 }
 
 
@@ -107,6 +112,13 @@ class Settings:
     max_parameters: int = 32            # free parameters (each costs training time)
     min_sampling_rate_hz: float = 1.0   # recordings outside this range are refused (422)
     max_sampling_rate_hz: float = 1.0e6
+    max_concurrent_uploads: int = 16    # recordings read and parsed at once; others wait
+    upload_bytes_in_flight: int = 128 * 1024 * 1024  # ... declaring at most this together
+    upload_queue_s: float = 30.0        # ... at most this long, then 503 with Retry-After
+    # Browser safety (service/security.py, docs/reliability.md).
+    allowed_hosts: str = ""             # comma list of Host names; "": loopback + bound host
+    allowed_origins: str = ""           # comma list of extra origins allowed to write
+    bind_host: str = "127.0.0.1"        # the address `siva serve --host` binds (not an env var)
     # Supervision.
     stop_timeout_s: float = 10.0        # DELETE / SIGTERM wait at most this for a trainer
     stuck_after_s: float = 600.0        # /healthz: a trainer without progress this long is stuck
@@ -128,13 +140,15 @@ class Settings:
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
                     "refine_candidates", "drift_baseline_records", "headline_window",
                     "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
-                    "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor")
+                    "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor",
+                    "max_concurrent_uploads", "upload_bytes_in_flight")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
         for name in ("replay_reservoir", "checkpoint_every_s", "snapshot_max_interval_s", "idle_sleep_s", "epoch_pause_s",
                      "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
-                     "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s"):
+                     "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s",
+                     "upload_queue_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
         if self.executor not in ("threads", "ray"):

@@ -122,17 +122,24 @@ class RecordingMeta:
     duration_s: float
     columns: tuple[str, ...]
     received_at: float      # unix time of the acknowledgement
+    channel_map: dict[str, str] | None = None  # the upload's ?map= (stored name -> column)
+    units: dict[str, str] | None = None        # the upload's ?unit= (column -> unit)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["columns"] = list(self.columns)
         return d
 
+    def read_options(self, structure: Any) -> dict[str, Any]:
+        """``Recording.read`` keywords for this stored file: the system's ``[channels]``
+        overridden by the upload's own mapping."""
+        return structure.read_options(self.channel_map, self.units)
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RecordingMeta":
         d = dict(d)
         d["columns"] = tuple(d.get("columns", ()))
-        return cls(**{k: d[k] for k in cls.__dataclass_fields__})
+        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
 
 
 @dataclass
@@ -340,7 +347,8 @@ class Store:
                 fmt=fmt, filename=filename, bytes=len(raw),
                 n_samples=int(info.get("n_samples", 0)), fs=float(info.get("fs", 0.0)),
                 duration_s=float(info.get("duration_s", 0.0)),
-                columns=tuple(info.get("columns", ())), received_at=time.time())
+                columns=tuple(info.get("columns", ())), received_at=time.time(),
+                channel_map=info.get("channel_map") or None, units=info.get("units") or None)
             rdir = s.path / "recordings"
             raw_path = rdir / _raw_name(rid, fmt)
             atomic_write(raw_path, raw)

@@ -9,8 +9,14 @@ Model and data
     :func:`register_element`, :data:`ELEMENT_KINDS` (the registry);
     :class:`Recording` (CSV / JSON / NPZ / MCAP / LVM / UFF58 / TDMS / MAT),
     :class:`RecordingError`, :class:`RecordingTooLarge`, :func:`register_format`,
-    :func:`sniff_format`, :func:`read_mcap_recording`, :func:`write_mcap_recording`,
+    :func:`sniff_format`, :func:`parse_pairs` (``--map``/``--unit`` text),
+    :func:`read_mcap_recording`, :func:`write_mcap_recording`,
     :func:`mcap_bytes`.
+Checks before training
+    :func:`preflight` (records of one fit) -> :class:`Preflight`, raising
+    :class:`PreflightError` (a list of :class:`Problem`); :func:`check_recording` (one
+    record: force, sampling vs the modes, clipping, length), :func:`check_rates` (mixed
+    sampling rates), :func:`resample_to`, :func:`mode_frequencies`.
 Processing
     :class:`Processing` (the chain) -> :class:`States`; :func:`simulated_recording`,
     :func:`central_difference`; :func:`detect_impulse` / :class:`Impulse` (the one rule
@@ -26,7 +32,8 @@ Identification
     explain them up to noise?); :class:`Ensemble`, :func:`normal_summary`,
     :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
-    :func:`displacement_mse`, :class:`OutputErrorProblem`;
+    :func:`displacement_mse`, :class:`OutputErrorProblem`, :func:`linearize` ->
+    :class:`Linearization` (the output error linearised at an anchor);
     baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
 Diagnosis
     :func:`diagnose` -> :class:`Diagnosis`, :class:`DiagnoseSettings`,
@@ -63,6 +70,9 @@ _export("processing", "Processing", "States", "simulated_recording", "central_di
 _export("impulse", "detect_impulse", "Impulse")
 _export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup")
 _export("excitation", "initial_state_and_force", "gate_force")
+_export("inputs", "parse_pairs")
+_export("preflight", "preflight", "check_recording", "check_rates", "resample_to",
+        "mode_frequencies", "Preflight", "PreflightError", "Problem")
 _export("siva", "Siva", "Identification", "choose_processing", "recommend_best")
 _export("training", "SivaSettings", "SivaTrainer")
 _export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
@@ -71,6 +81,7 @@ _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
         "OutputErrorProblem")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
+_export("linearized", "linearize", "Linearization")
 _export("diagnose", "diagnose", "Diagnosis", "DiagnoseSettings", "synthetic_impacts",
         "with_effect", "html_report")
 _export("effects", "Effect", "EFFECTS", "register_effect")
@@ -111,6 +122,9 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.formats import REGISTRY as RECORDING_FORMATS
     from ._impl.formats import (MCAP_MAGIC, ReadLimits, RecordingTooLarge, media_types,
                                 register_format, resolve_format, sniff_format)
+    from ._impl.inputs import parse_pairs
+    from ._impl.preflight import (Preflight, PreflightError, Problem, check_rates,
+                                  check_recording, mode_frequencies, preflight, resample_to)
     from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                output_error, refine)
@@ -120,4 +134,5 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
     from ._impl.structure import SpecError, Structure
     from ._impl.training import SivaSettings, SivaTrainer
+    from ._impl.linearized import Linearization, linearize
     from ._impl.validation import validation_score

@@ -41,6 +41,15 @@ def _common_fit_args(p: argparse.ArgumentParser, val_required: bool = True) -> N
     p.add_argument("--processing", default="auto",
                    help="'auto', 'none', 'paper', or a JSON object of Processing settings")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--map", action="append", metavar="SRC=DST", default=[],
+                   help="read the file's channel SRC as column DST, e.g. --map "
+                        "\"Accel LO=acc_LO\" or --map t=time (repeatable)")
+    p.add_argument("--unit", action="append", metavar="COL=UNIT", default=[],
+                   help="the unit a column was recorded in, converted to SI on reading, e.g. "
+                        "--unit acc_LO=g, --unit disp_x=mm (repeatable)")
+    p.add_argument("--resample", action="store_true",
+                   help="records of different sampling rates: resample to the lowest "
+                        "(default: refuse)")
 
 
 def _identify_args(p: argparse.ArgumentParser) -> None:

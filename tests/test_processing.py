@@ -252,3 +252,19 @@ def test_auto_keeps_the_unknown_initial_velocity_of_a_clean_free_decay(shared_da
     noisy = Recording(exact.time, {"acc_x": a + 0.003 * np.abs(a).max() * rng.normal(size=a.size)},
                       "noisy.csv")
     assert Processing.auto([noisy], ["x"]).drift == "highpass"
+
+
+def test_apply_simulated_derives_only_what_is_needed(lono_case) -> None:
+    # an acceleration residual needs no integration: same accelerations bit for bit,
+    # the rest NaN (not zeros a caller could mistake for a response)
+    model, _, rec, _ = lono_case
+    proc = Processing.auto([rec], model.dofs)
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((2, len(rec), 2))
+    q, v = np.cumsum(a, axis=1), np.cumsum(np.cumsum(a, axis=1), axis=1)
+    full = proc.apply_simulated(rec, model.dofs, q, v, a)
+    acc = proc.apply_simulated(rec, model.dofs, q, v, a, need="a")
+    assert np.array_equal(full.a, acc.a)
+    assert np.isnan(acc.q).all() and np.isnan(acc.v).all()
+    disp = proc.apply_simulated(rec, model.dofs, q, v, a, need="q")
+    assert np.array_equal(full.q, disp.q) and np.isnan(disp.a).all()

@@ -206,3 +206,25 @@ def test_report_table_says_which_value_to_use_with_units(fitted):
     assert "Use <code>best</code>" in page
     assert "N/m" in page and "N/(m/s)" in page
     assert not re.search(r"(\d\S*) \[\1, \1\]", page)  # no "0.5 [0.5, 0.5]"
+
+
+def test_a_rejected_model_is_shown_rejected_at_the_top(fitted):
+    """Issue 17 finding 2: the validation verdict is the first thing on the page, and a
+    rejected model's values are not presented as the ones to use."""
+    import copy
+
+    from siva_core._impl.report import _html
+
+    est, _, _ = fitted
+    res = copy.copy(est.result_)
+    res.metrics = {**res.metrics, "validation_test": {"best": {
+        "statistic": 6.8, "accepted": False, "p_value": 0.0,
+        "records": {"held.csv": {"statistic": 6.8}}}}}
+    page = _html(est, res, list(res.names), None, [], [], None)
+    assert "REJECTED" in page and "T = 6.8" in page and "siva diagnose" in page
+    assert page.index('id="verdict"') < page.index("<h2>Parameters")
+    assert "Use <code>best</code>" not in page and "NOT validated" in page
+    res.metrics = {**res.metrics, "validation_test": {"best": {
+        "statistic": 1.05, "accepted": True, "p_value": 0.6, "records": {}}}}
+    page = _html(est, res, list(res.names), None, [], [], None)
+    assert "ACCEPTED" in page and "Use <code>best</code>" in page

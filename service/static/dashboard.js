@@ -29,8 +29,8 @@ function fmt(x, digits) {
   const a = Math.abs(x);
   return (a !== 0 && (a < 1e-3 || a >= 1e6)) ? x.toExponential(d - 1) : String(Number(x.toPrecision(d)));
 }
-function isoOf(t) {
-  return typeof t === "number" ? new Date(t * 1000).toISOString().replace(/\.\d+Z$/, "Z") : "–";
+function localTime(t) {
+  return typeof t === "number" && isFinite(t) ? new Date(t * 1000).toLocaleString() : "–";
 }
 async function getJSON(path) {
   const r = await fetch(path, { headers: { Accept: "application/json" } });
@@ -47,6 +47,37 @@ function plotWidth(container, fraction) {
   const w = container.clientWidth || 600;
   return Math.max(260, Math.floor(w * (fraction || 1)) - 12);
 }
+/** A linear range that uPlot can draw: uPlot 1.6.32 loops forever building axis ticks
+ * (RangeError: Invalid array length after seconds of 100 % CPU, leeoniya/uPlot#1084) when a
+ * scale's min and max are equal up to float noise - e.g. a converged parameter or a
+ * float32 ensemble mean that only jitters in its 7th digit, or a single point.  So: pad a
+ * range narrower than 1e-6 of its magnitude to +-0.1 % (at least 1e-12), and refuse
+ * non-finite ends. */
+function safeLinear(u, lo, hi) {
+  if (lo == null || hi == null || !isFinite(lo) || !isFinite(hi)) return [0, 1];
+  if (lo > hi) [lo, hi] = [hi, lo];
+  const mag = Math.max(Math.abs(lo), Math.abs(hi));
+  const pad = (hi - lo) * 0.05;
+  if (hi - lo <= 1e-6 * mag || hi - lo < 1e-12) {
+    const mid = (lo + hi) / 2, w = Math.max(1e-3 * Math.abs(mid), 1e-12);
+    return [mid - w, mid + w];
+  }
+  return [lo - pad, hi + pad];
+}
+/** A time range [s] uPlot can draw: at least a minute wide. */
+function safeTime(u, lo, hi) {
+  if (lo == null || hi == null || !isFinite(lo) || !isFinite(hi)) { const now = Date.now() / 1000; return [now - 60, now]; }
+  return hi - lo < 60 ? [hi - 60, hi + 1] : [lo, hi];
+}
+/** A log range (decades) from the data's positive extremes: at most 4 decades below the
+ * peak, finite, never [0, 0] or lo >= hi. */
+function safeLog(u, lo, hi) {
+  if (!(hi > 0) || !isFinite(hi)) return [1e-6, 1];
+  const top = Math.min(hi * 2, Number.MAX_VALUE / 10);
+  let bottom = (lo > 0 && isFinite(lo)) ? Math.max(lo, hi * 1e-4) : hi * 1e-4;
+  bottom = Math.pow(10, Math.floor(Math.log10(bottom)));  // a decade: ticks at 10^k only
+  return bottom > 0 && bottom < top / 1.01 ? [bottom, top] : [top / 100, top];
+}
 /** Create or update a uPlot keyed by id; re-created when the series layout changes. */
 function upsertPlot(id, container, opts, data) {
   const sig = JSON.stringify(opts.series.map(s => s.label)) + (opts.title || "");
@@ -54,7 +85,13 @@ function upsertPlot(id, container, opts, data) {
   if (p && (p.sig !== sig || !container.contains(p.u.root))) { p.u.destroy(); p = null; }
   if (!p) {
     opts.legend = Object.assign({ live: false }, opts.legend || {});
-    for (const a of opts.axes || []) if (!a.values) a.values = (u, vals) => vals.map(v => fmt(v, 3));
+    opts.scales = opts.scales || {};
+    for (const k of ["x", "y"]) {  // every scale gets a range uPlot can draw (safeLinear)
+      const sc = opts.scales[k] = opts.scales[k] || {};
+      if (!sc.range && sc.distr !== 3) sc.range = sc.time ? safeTime : safeLinear;
+    }
+    const timeX = get(opts, "scales", "x", "time");
+    (opts.axes || []).forEach((a, i) => { if (!a.values && !(i === 0 && timeX)) a.values = (u, vals) => vals.map(v => fmt(v, 3)); });
     const u = new uPlot(opts, data, container);
     state.plots[id] = p = { u, sig };
   } else {
@@ -121,13 +158,12 @@ function renderEstimate(est) {
   const { params, source, best } = headline(est);
   const names = Object.keys(params).length ? Object.keys(params) : Object.keys(best);
   if (!names.length) { box.replaceChildren(na("no estimate yet (" + (est.state || "starting") + ")")); return; }
-  const units = est.units || est.parameter_units || state.units || {};
-  const t = el("table", {}, el("tr", {}, ...["parameter", "value", "95 % interval", "source", "best (output error)", "best 95 %"].map(h => el("th", { text: h }))));
+  const units = est.parameter_units || state.units || {};
+  const t = el("table", {}, el("tr", {}, ...["parameter", "unit", "value", "95 % interval", "source", "best (output error)", "best 95 %"].map(h => el("th", { text: h }))));
   for (const p of names) {
     const s = params[p] || {}; const b = best[p] || {};
     const v = s.mean ?? s.value; const ci = s.ci95 || [];
-    const u = units[p] ? " " + units[p] : "";
-    t.append(el("tr", {}, el("td", { text: p + u }), el("td", { class: "num", text: fmt(v) }),
+    t.append(el("tr", {}, el("td", { text: p }), el("td", { text: units[p] || "–" }), el("td", { class: "num", text: fmt(v) }),
       el("td", { class: "num", text: ci.length === 2 ? `${fmt(ci[0])} … ${fmt(ci[1])}` : "–" }),
       el("td", { text: s.source || source }),
       el("td", { class: "num", text: fmt(b.value ?? b.mean) }),
@@ -139,21 +175,46 @@ function renderEstimate(est) {
   sum.textContent = `state ${est.state || "–"} · epoch ${est.epoch ?? "–"}` +
     (est.converged ? ` · converged at ${est.converged_at ?? "?"}` : " · not converged") +
     (typeof secs === "number" && secs > 0 ? ` · ${fmt(1 / secs, 3)} epochs/s` : "") +
-    ` · snapshot ${est.time_iso || isoOf(est.time)}` +
+    ` · snapshot ${localTime(est.time)}` +
     (est.error ? ` · error: ${est.error}` : "");
+}
+/** The validation test's verdict when the service publishes one (``validation`` or
+ * ``best.validation`` with a boolean ``accepted``: T statistic, p-value); else null. */
+function verdictOf(est) {
+  for (const v of [get(est, "validation"), get(est, "best", "validation"), get(est, "verdict")]) {
+    if (v && typeof v === "object" && typeof v.accepted === "boolean") return v;
+    if (v && typeof v === "object" && (v.verdict === "accepted" || v.verdict === "rejected"))
+      return Object.assign({}, v, { accepted: v.verdict === "accepted", statistic: v.T });  // the service's estimate
+  }
+  return null;
+}
+function renderVerdict(est) {
+  const box = document.getElementById("verdict");
+  const v = verdictOf(est);
+  if (!v) { box.hidden = true; box.replaceChildren(); return; }
+  box.hidden = false;
+  const stats = [typeof v.statistic === "number" ? `T = ${fmt(v.statistic, 3)}` : null,
+                 typeof v.p_value === "number" ? `p = ${fmt(v.p_value, 2)}` : null].filter(Boolean).join(", ");
+  box.className = "verdict " + (v.accepted ? "accepted" : "rejected");
+  box.replaceChildren(v.accepted
+    ? el("span", { text: `Validation: model accepted${stats ? " (" + stats + ")" : ""}` })
+    : el("span", {}, el("strong", { text: "Model rejected by the validation test" + (stats ? ` (${stats})` : "") + ": " }),
+        document.createTextNode(v.next || v.hint || "it does not explain the validation records; do not use these parameters yet. "),
+        "Try ", el("code", { text: "siva diagnose" }), " (or the Diagnosis panel below) to find what the model is missing."));
 }
 function alarmState(a) { return a.state || (a.active === false ? "cleared" : "active"); }
 function renderAlarms(drift) {
   const box = document.getElementById("alarms");
   const alarms = (drift && drift.alarms) || [];
   if (!alarms.length) { box.replaceChildren(na(drift ? "no alarm" : undefined)); return; }
-  const t = el("table", {}, el("tr", {}, ...["parameter", "state", "change", "since epoch", "message"].map(h => el("th", { text: h }))));
+  const t = el("table", {}, el("tr", {}, ...["quantity", "state", "change", "raised at record", "raised (local time)", "message"].map(h => el("th", { text: h }))));
   for (const a of alarms.slice().reverse()) {
     const st = alarmState(a);
-    t.append(el("tr", {}, el("td", { text: a.parameter || "–" }),
+    t.append(el("tr", {}, el("td", { text: (a.parameter || "–") + unitOf(a.parameter) }),
       el("td", {}, el("span", { class: "badge " + st, text: st })),
-      el("td", { class: "num", text: typeof a.change_rel === "number" ? (100 * a.change_rel).toFixed(1) + " %" : "–" }),
-      el("td", { class: "num", text: String(a.first_epoch ?? a.epoch ?? "–") }),
+      el("td", { class: "num", text: typeof a.change_rel === "number" ? (a.change_rel > 0 ? "+" : "") + (100 * a.change_rel).toFixed(1) + " %" : "–" }),
+      el("td", { class: "num", text: String(a.raised_index ?? "–") }),
+      el("td", { text: localTime(a.raised_time) }),
       el("td", { text: a.message || "" })));
   }
   box.replaceChildren(t);
@@ -161,44 +222,54 @@ function renderAlarms(drift) {
 
 // ------------------------------------------------------------------ traces over time
 function historyOf(drift) {
+  // x axes are wall-clock time (local): a snapshot without a time cannot be placed
   const h = (drift && (drift.history || drift.snapshots)) || [];
-  return h.filter(e => e && typeof e.epoch === "number");
+  return h.filter(e => e && typeof e.time === "number" && isFinite(e.time));
+}
+function unitOf(p) { const u = (state.units || {})[p]; return u ? ` [${u}]` : ""; }
+/** Alarm times [s] (raised) for the markers of quantity p. */
+function alarmTimes(alarms, p) {
+  return (alarms || []).filter(a => a.parameter === p).map(a => a.raised_time).filter(v => typeof v === "number");
 }
 function renderParamTraces(drift, est) {
   const box = document.getElementById("param-plots");
   const hist = historyOf(drift);
   if (hist.length < 2) { dropPlots("param:"); box.replaceChildren(na("not yet available (fewer than 2 snapshots)")); return; }
   if (box.querySelector(".na")) box.replaceChildren();
-  const names = Object.keys(Object.assign({}, ...hist.map(e => e.recent || {}), ...hist.map(e => e.parameters || {})));
+  const names = Object.keys(Object.assign({}, ...hist.map(e => e.parameters || {}), ...hist.map(e => e.ensemble || {})));
   const alarms = (drift.alarms || []);
   const ref = get(drift, "reference", "parameters") || {};
-  const x = hist.map(e => e.epoch);
+  const x = hist.map(e => e.time);
   const w = plotWidth(box, names.length > 1 ? 0.33 : 1);
   for (const p of names) {
     const id = "param:" + p;
     let holder = document.getElementById("holder-" + id);
     if (!holder) { holder = el("div", { id: "holder-" + id }); box.append(holder); }
-    const recent = hist.map(e => numOr(get(e, "recent", p)));
     const mean = hist.map(e => numOr(get(e, "parameters", p, "mean") ?? get(e, "parameters", p, "value")));
     const lo = hist.map(e => numOr(get(e, "parameters", p, "ci95", 0)));
     const hi = hist.map(e => numOr(get(e, "parameters", p, "ci95", 1)));
+    const ens = hist.map(e => numOr(get(e, "ensemble", p, "mean") ?? get(e, "ensemble", p)));
+    const elo = hist.map(e => numOr(get(e, "ensemble", p, "ci95", 0)));
+    const ehi = hist.map(e => numOr(get(e, "ensemble", p, "ci95", 1)));
     const band = get(ref, p, "band") || [];
     const rlo = x.map(() => numOr(band[0])), rhi = x.map(() => numOr(band[1]));
-    const marks = alarms.filter(a => a.parameter === p).map(a => a.first_epoch ?? a.epoch).filter(v => typeof v === "number");
+    const marks = alarmTimes(alarms, p);
     const opts = {
-      title: p, width: w, height: 200, plugins: [markersPlugin(marks)],
-      scales: { x: { time: false } },
-      axes: [{ label: "epoch" }, { size: 70 }],
-      series: [{ label: "epoch" },
-        { label: "recent", stroke: "#1f77b4", width: 1 },
-        { label: "mean", stroke: "#ff7f0e", width: 1.5 },
+      title: p + unitOf(p), width: w, height: 200, plugins: [markersPlugin(marks)],
+      scales: { x: { time: true } },
+      axes: [{ label: "time (local)" }, { size: 70 }],
+      series: [{ label: "time" },
+        { label: "headline", stroke: "#ff7f0e", width: 1.5 },
         { label: "95 % lo", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
         { label: "95 % hi", stroke: "rgba(255,127,14,0.4)", width: 0.5 },
+        { label: "ensemble", stroke: "#1f77b4", width: 1 },
+        { label: "ens. 95 % lo", stroke: "rgba(31,119,180,0.4)", width: 0.5 },
+        { label: "ens. 95 % hi", stroke: "rgba(31,119,180,0.4)", width: 0.5 },
         { label: "ref lo", stroke: "#555", dash: [4, 4], width: 1 },
         { label: "ref hi", stroke: "#555", dash: [4, 4], width: 1 }],
-      bands: [{ series: [4, 3], fill: "rgba(255,127,14,0.18)" }],
+      bands: [{ series: [3, 2], fill: "rgba(255,127,14,0.18)" }, { series: [6, 5], fill: "rgba(31,119,180,0.15)" }],
     };
-    upsertPlot(id, holder, opts, [x, recent, mean, lo, hi, rlo, rhi]);
+    upsertPlot(id, holder, opts, [x, mean, lo, hi, ens, elo, ehi, rlo, rhi]);
   }
 }
 function numOr(v) { return typeof v === "number" && isFinite(v) ? v : null; }
@@ -211,30 +282,40 @@ function renderModal(drift) {
     const nModes = Math.max(0, ...rows.map(r => (Array.isArray(r) ? r.length : 0)));
     if (hist.length < 2 || nModes === 0) { dropPlots("modal:" + key); box.replaceChildren(na("not yet available")); continue; }
     if (box.querySelector(".na")) box.replaceChildren();
-    const x = hist.map(e => e.epoch);
-    const series = [{ label: "epoch" }], data = [x];
+    const x = hist.map(e => e.time);
+    const series = [{ label: "time" }], data = [x];
     for (let m = 0; m < nModes; m++) {
       series.push({ label: `${title}${m + 1}`, stroke: COLORS[m % COLORS.length], width: 1.5 });
       data.push(rows.map(r => (Array.isArray(r) ? numOr(r[m]) : null)));
     }
-    upsertPlot("modal:" + key, box, { width: plotWidth(box), height: 200, scales: { x: { time: false } },
-      axes: [{ label: "epoch" }, { size: 60 }], series }, data);
+    upsertPlot("modal:" + key, box, { width: plotWidth(box), height: 200, scales: { x: { time: true } },
+      axes: [{ label: "time (local)" }, { size: 60 }], series }, data);
   }
 }
 
 // ------------------------------------------------------------------ validation score
 function renderValidation(est) {
   const box = document.getElementById("validation");
-  const recs = get(est, "validation", "records") || get(est, "discriminator", "records");
-  if (!recs || !Object.keys(recs).length) { box.replaceChildren(na()); return; }
-  const t = el("table", {}, el("tr", {}, ...["record", "score (loss_D)", "|loss_D − ln 4|", "D(measured)", "D(simulated)"].map(h => el("th", { text: h }))));
-  for (const [rid, r] of Object.entries(recs)) {
-    const score = r.score ?? r.loss_d;
-    t.append(el("tr", {}, el("td", { text: rid }), el("td", { class: "num", text: fmt(score, 4) }),
-      el("td", { class: "num", text: typeof score === "number" ? fmt(Math.abs(score - Math.log(4)), 3) : "–" }),
-      el("td", { class: "num", text: fmt(r.d_real, 3) }), el("td", { class: "num", text: fmt(r.d_fake, 3) })));
+  const v = get(est, "validation") || {};
+  const disc = get(est, "discriminator", "records") || {};
+  const rows = [];
+  for (const of of ["headline", "ensemble"]) {
+    for (const r of (get(v, of, "per_record") || [])) rows.push([of, r]);
   }
-  box.replaceChildren(t);
+  if (!rows.length) {
+    box.replaceChildren(na(v.reason || "not yet available"));
+    return;
+  }
+  const head = el("p", {}, el("span", { class: "badge " + (v.verdict === "rejected" ? "confirmed" : "cleared"),
+    text: `model ${v.verdict}` }), el("span", { text: `  T = ${fmt(v.T, 3)}, p = ${fmt(v.p_value, 3)} (${v.of})` }));
+  const t = el("table", {}, el("tr", {}, ...["of", "record", "T", "p-value", "verdict", "loss_D (discriminator)"].map(h => el("th", { text: h }))));
+  for (const [of, r] of rows) {
+    t.append(el("tr", {}, el("td", { text: of }), el("td", { text: r.record }),
+      el("td", { class: "num", text: fmt(r.T, 3) }), el("td", { class: "num", text: fmt(r.p_value, 3) }),
+      el("td", { text: r.verdict || r.error || "–" }),
+      el("td", { class: "num", text: fmt(get(disc, r.record, "loss_d"), 4) })));
+  }
+  box.replaceChildren(head, t);
 }
 
 // ------------------------------------------------------------------ latest record
@@ -252,7 +333,7 @@ function renderLatest(lr) {
   for (const b of [box, specBox, cwtBox]) if (b.querySelector(".na")) b.replaceChildren();
   const rec = lr.record || {};
   if (lr.parameter_units) state.units = lr.parameter_units;
-  meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${rec.received_at_iso || isoOf(rec.received_at)}), ` +
+  meta.textContent = `${rec.id || "?"} (${rec.role || "?"}, received ${typeof rec.received_at === "number" ? localTime(rec.received_at) : (rec.received_at_iso || "?")}), ` +
     `simulated with ${lr.parameters_source || "?"}` + (lr.diverged ? " — the simulation diverged" : "");
   const dofs = Object.keys(lr.dofs || {});
   for (const d of dofs) {
@@ -270,7 +351,7 @@ function renderLatest(lr) {
     const pos = a => (a || []).map(v => (typeof v === "number" && v > 0 ? v : null));
     const h3 = holder(specBox, "latest:spec:" + d);
     upsertPlot("latest:spec:" + d, h3, { title: `${d}`, width: plotWidth(specBox), height: 200,
-      scales: { x: { time: false }, y: { distr: 3, range: (u, lo, hi) => [Math.max(lo, hi * 1e-4), hi * 2] } },
+      scales: { x: { time: false }, y: { distr: 3, range: safeLog } },
       axes: [{ label: "frequency [Hz]" }, { size: 70 }], plugins: [markersPlugin(lr.modes_hz || [], "#2ca02c")],
       series: [{ label: "Hz" }, { label: "measured", stroke: "#000", width: 1 }, { label: "simulated", stroke: "#d62728", width: 1 }] },
       [lr.spectrum_hz, pos(sp.measured), sp.simulated ? pos(sp.simulated) : lr.spectrum_hz.map(() => null)]);
@@ -368,8 +449,13 @@ async function refresh() {
       sysSec.hidden = false;
       document.getElementById("system-title").textContent = sel.name;
       const name = encodeURIComponent(sel.name);
+      if (!state.units) {  // units before the first table and plot titles (once per system)
+        const info = await getJSON(`/v1/systems/${name}`).catch(() => ({}));
+        state.units = info.parameter_units || {};
+      }
       const [est, drift] = await Promise.all([getJSON(`/v1/systems/${name}/estimate`),
                                               getJSON(`/v1/systems/${name}/drift`).catch(() => null)]);
+      renderVerdict(est);
       renderEstimate(est); renderAlarms(drift); renderParamTraces(drift, est); renderModal(drift);
       renderValidation(est);
       if (state.tick % LATEST_EVERY === 0) {
@@ -380,7 +466,7 @@ async function refresh() {
     }
     state.tick++;
     status.classList.remove("error");
-    status.textContent = `live · ${systems.length} system(s) · updated ${new Date().toISOString().replace(/\.\d+Z$/, "Z")}`;
+    status.textContent = `live · ${systems.length} system(s) · updated ${new Date().toLocaleTimeString()}`;
   } catch (e) {
     status.classList.add("error");
     status.textContent = "cannot reach the service: " + (e.message || e) + " (retrying)";

@@ -72,6 +72,12 @@ class Ensemble:
         self._samples.clear()
         self._epochs.clear()
 
+    def drop_nonfinite(self) -> None:
+        """Forget samples with a NaN or inf (a diverged epoch must not enter Approach II)."""
+        keep = [(t, e) for t, e in zip(self._samples, self._epochs) if np.all(np.isfinite(t))]
+        self._samples = deque((t for t, _ in keep), maxlen=self.maxlen)
+        self._epochs = deque((e for _, e in keep), maxlen=self.maxlen)
+
     def __len__(self) -> int:
         return len(self._samples)
 

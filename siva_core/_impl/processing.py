@@ -269,11 +269,12 @@ class Processing:
     # ------------------------------------------------------------------ filters
     def _filt(self, x: np.ndarray, kind: str, cut: Any, fs: float, axis: int = 0) -> np.ndarray:
         """Zero-phase (forward-backward) second-order sections; short records still work."""
-        sos = _design_sos(kind, tuple(cut) if isinstance(cut, (list, tuple)) else float(cut),
-                          float(fs), int(self.order))
+        key = (kind, tuple(cut) if isinstance(cut, (list, tuple)) else float(cut), float(fs),
+               int(self.order))
+        sos = _design_sos(*key)
         n = np.shape(x)[axis]
         padlen = min(3 * (2 * len(sos) + 1), max(n - 1, 0))
-        return signal.sosfiltfilt(sos, x, axis=axis, padlen=padlen)
+        return _sosfiltfilt(sos, _sos_zi(*key), np.asarray(x, dtype=float), axis, padlen)
 
     def _apply_key(self, x: np.ndarray, key: FilterKey, fs: float, axis: int) -> np.ndarray:
         kind = key[0]
@@ -327,13 +328,21 @@ class Processing:
     # ------------------------------------------------------------------ chain
     def _derive_arrays(self, fs: float, dofs: Sequence[str],
                        given: Callable[[str, str], np.ndarray | None],
-                       force: np.ndarray) -> tuple[np.ndarray, ...]:
+                       force: np.ndarray, need: str = "qva") -> tuple[np.ndarray, ...]:
         """Core: per DOF derive what is missing; arrays have time on the last axis.
 
         Every derived signal records the filters it went through (its ledger); with
         ``consistent`` each signal is then topped up to the union of all ledgers.
+        ``need``: which of q, v, a are wanted ("qva" = all).  The ledgers are worked out
+        symbolically for every signal (they set the consistent total filter), but only
+        the wanted signals and what they derive from are computed (an output-error
+        residual on accelerations needs no integration); the others are returned as
+        zero-strided NaN arrays.  Wanted signals are computed by exactly the same
+        operations as with ``need="qva"`` (bit-identical).
         """
         npad = int(round(self.pad * fs))
+        if self.drift == "tail":
+            need = "qva"  # the tail constants couple v and q
 
         def padded(x: np.ndarray, axis: int) -> np.ndarray:
             """The structure at rest before and after the record: zeros, on every signal."""
@@ -348,7 +357,9 @@ class Processing:
             return None if x is None else padded(np.asarray(x, float), -1)
 
         force = padded(np.asarray(force, float), 0)
-        qs, vs, as_ = [], [], []
+        qs: list[np.ndarray | None] = []
+        vs: list[np.ndarray | None] = []
+        as_: list[np.ndarray | None] = []
         ledgers: list[Counter] = []
         acc_keys = self._acc_keys(fs)
         high = [("high", float(self.highpass))] if self.highpass is not None else []
@@ -357,28 +368,44 @@ class Processing:
             dq, dv, da = source("disp", d), source("vel", d), source("acc", d)
             if dq is None and dv is None and da is None:
                 raise ValueError(f"DOF {d!r} has no disp, vel or acc")
+            # ledgers (symbolic): which filters each signal of this DOF goes through
             la = lv = lq = Counter()
-            a = v = q = None
             if da is not None:
-                a = self.filter_acc(np.asarray(da, float), fs, axis=-1)
                 la = Counter(acc_keys)
-            if dv is not None:
-                v = np.asarray(dv, float)
-            elif a is not None:
-                v, lv = self.integrate(a, fs, axis=-1), la + Counter(high)
-            else:
-                v, lv = self.differentiate(np.asarray(dq, float), fs, axis=-1), Counter(low)
-            if dq is not None:
-                q = np.asarray(dq, float)
-            else:
-                q, lq = self.integrate(v, fs, axis=-1), lv + Counter(high)
-                if self.drift == "tail" and dv is None and da is not None:
-                    v, q = _joint_tail_constants(v, q, fs)
-            if a is None:
-                a, la = self.differentiate(v, fs, axis=-1), lv + Counter(low)
-            qs.append(q)
-            vs.append(v)
-            as_.append(a)
+            if dv is None:
+                lv = la + Counter(high) if da is not None else Counter(low)
+            if dq is None:
+                lq = lv + Counter(high)
+            if da is None:
+                la = lv + Counter(low)
+            # what must be computed: the wanted signals and their sources
+            want_q = "q" in need
+            want_a = "a" in need
+            want_v = ("v" in need or (want_q and dq is None)
+                      or (want_a and da is None))
+            need_fa = want_a or (want_v and dv is None and da is not None)
+            a = v = q = None
+            if da is not None and need_fa:
+                a = self.filter_acc(np.asarray(da, float), fs, axis=-1)
+            if want_v:
+                if dv is not None:
+                    v = np.asarray(dv, float)
+                elif da is not None:
+                    v = self.integrate(a, fs, axis=-1)
+                else:
+                    v = self.differentiate(np.asarray(dq, float), fs, axis=-1)
+            if want_q:
+                if dq is not None:
+                    q = np.asarray(dq, float)
+                else:
+                    q = self.integrate(v, fs, axis=-1)
+                    if self.drift == "tail" and dv is None and da is not None:
+                        v, q = _joint_tail_constants(v, q, fs)
+            if a is None and want_a:
+                a = self.differentiate(v, fs, axis=-1)
+            qs.append(q if want_q else None)
+            vs.append(v if "v" in need else None)
+            as_.append(a if want_a else None)
             ledgers.extend([lq, lv, la])
         f = np.asarray(force, float)
         if self.consistent:
@@ -388,10 +415,17 @@ class Processing:
             for k in range(len(dofs)):
                 for lst, led in ((qs, ledgers[3 * k]), (vs, ledgers[3 * k + 1]),
                                  (as_, ledgers[3 * k + 2])):
-                    lst[k] = self._top_up(lst[k], target - led, fs, -1)
+                    if lst[k] is not None:
+                        lst[k] = self._top_up(lst[k], target - led, fs, -1)
+        if self.consistent:
             f = self._top_up(f, target, fs, 0)
-        shape = np.broadcast_shapes(*(x.shape for x in qs + vs + as_))
-        q, v, a = (np.stack([np.broadcast_to(x, shape) for x in lst], axis=-1)
+        computed = [x for x in qs + vs + as_ if x is not None]
+        shape = np.broadcast_shapes(*(x.shape for x in computed))
+        nan = np.broadcast_to(np.float64(np.nan), shape)
+        q, v, a = (np.stack([np.broadcast_to(x, shape) if x is not None else nan
+                             for x in lst], axis=-1)
+                   if any(x is not None for x in lst)
+                   else np.broadcast_to(np.float64(np.nan), shape + (len(dofs),))
                    for lst in (qs, vs, as_))
         if npad > 0:
             keep = slice(npad, q.shape[-2] - npad)
@@ -440,14 +474,16 @@ class Processing:
         return max(1, int(round(fs / self.decimate_to)))
 
     def _finish(self, rec: Recording, dofs: Sequence[str], q: np.ndarray, v: np.ndarray,
-                a: np.ndarray, f: np.ndarray) -> States:
-        """Decimate (zero-phase anti-aliasing) and cut to the kept window."""
+                a: np.ndarray, f: np.ndarray, need: str = "qva") -> States:
+        """Decimate (zero-phase anti-aliasing) and cut to the kept window (only the
+        ``need``ed of q, v, a: the others stay NaN, see ``_derive_arrays``)."""
         fs = rec.fs
         k = self.decimation(fs)
         if k > 1:
             # zero-phase anti-aliasing low-pass at 0.8 x the new Nyquist, then keep every k-th
             cut = 0.8 * fs / k / 2
-            q, v, a = (self._filt(x, "low", cut, fs, axis=-2) for x in (q, v, a))
+            q, v, a = (self._filt(x, "low", cut, fs, axis=-2) if name in need else x
+                       for name, x in (("q", q), ("v", v), ("a", a)))
             if self.consistent:
                 f = self._filt(f, "low", cut, fs, axis=0)
         edge = int(round(self.trim * fs))
@@ -457,8 +493,12 @@ class Processing:
             raise ValueError(f"{rec.name}: nothing left after start/trim "
                              f"(start index {i0}, end {i1})")
         sl = slice(i0, i1, k)
-        return States(rec.time[sl].copy(), q[..., sl, :].copy(), v[..., sl, :].copy(),
-                      a[..., sl, :].copy(), f[sl].copy(), rec.name, rec.has_force(dofs), i0, k)
+        def cut(name: str, x: np.ndarray) -> np.ndarray:
+            y = x[..., sl, :]
+            return y.copy() if name in need else np.broadcast_to(np.float64(np.nan), y.shape)
+
+        return States(rec.time[sl].copy(), cut("q", q), cut("v", v), cut("a", a), f[sl].copy(),
+                      rec.name, rec.has_force(dofs), i0, k)
 
     def apply(self, rec: Recording, dofs: Sequence[str]) -> States:
         """Run the chain on one recording (measured or simulated, see simulated_recording)."""
@@ -466,13 +506,15 @@ class Processing:
         return self._finish(rec, dofs, q, v, a, f)
 
     def apply_simulated(self, measured: Recording, dofs: Sequence[str], q: np.ndarray,
-                        v: np.ndarray, a: np.ndarray) -> States:
+                        v: np.ndarray, a: np.ndarray, need: str = "qva") -> States:
         """Pass simulated states through exactly the chain ``measured`` goes through.
 
         ``q``, ``v``, ``a``: (..., T, n_dof) on the measured time grid (leading axes, e.g.
         a batch of parameter sets, are kept).  Only the quantities ``measured`` has per DOF
         are taken from the simulation; the force, start index and decimation come from the
         measured record, so the result lines up sample by sample with ``apply(measured)``.
+        ``need``: the processed quantities wanted ("qva"; e.g. "a" for a residual on
+        accelerations): the others are not derived and come back as NaN.
         """
         sim = {"disp": np.asarray(q, float), "vel": np.asarray(v, float),
                "acc": np.asarray(a, float)}
@@ -489,8 +531,8 @@ class Processing:
             return sim[qty][..., index[d]]
 
         qq, vv, aa, f = self._derive_arrays(measured.fs, dofs, given,
-                                            self.force(measured, dofs))
-        return self._finish(measured, dofs, qq, vv, aa, f)
+                                            self.force(measured, dofs), need)
+        return self._finish(measured, dofs, qq, vv, aa, f, need)
 
     def with_(self, **kw: Any) -> "Processing":
         return replace(self, **kw)
@@ -543,6 +585,46 @@ def _design_sos(kind: str, cut: float | tuple[float, float], fs: float,
     else:
         sos = signal.butter(order, min(cut, 0.95 * nyq), btype="lowpass", fs=fs, output="sos")
     return sos
+
+
+@functools.lru_cache(maxsize=512)
+def _sos_zi(kind: str, cut: float | tuple[float, float], fs: float, order: int) -> np.ndarray:
+    """``sosfilt_zi`` of a chain filter, memoised (scipy's ``sosfiltfilt`` recomputes it on
+    every call: a linear solve per section that cost as much as filtering a short record)."""
+    return signal.sosfilt_zi(_design_sos(kind, cut, fs, order))
+
+
+def _sosfiltfilt(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, axis: int,
+                 padlen: int) -> np.ndarray:
+    """``scipy.signal.sosfiltfilt(sos, x, axis, padtype="odd", padlen)`` with a precomputed
+    ``zi`` (the same operations in the same order: bit-identical results)."""
+    axis = axis % x.ndim
+    n = x.shape[axis]
+    if n <= padlen:
+        raise ValueError(f"The length of the input vector x must be greater than padlen, "
+                         f"which is {padlen}.")
+
+    def sl(start: int | None = None, stop: int | None = None, step: int | None = None
+           ) -> tuple[slice, ...]:
+        idx = [slice(None)] * x.ndim
+        idx[axis] = slice(start, stop, step)
+        return tuple(idx)
+
+    if padlen > 0:  # odd extension, as scipy.signal._arraytools.odd_ext
+        left_end, right_end = x[sl(0, 1)], x[sl(-1, None)]
+        ext = np.concatenate((2 * left_end - x[sl(padlen, 0, -1)], x,
+                              2 * right_end - x[sl(-2, -(padlen + 2), -1)]), axis=axis)
+    else:
+        ext = x
+    shape = [1] * x.ndim
+    shape[axis] = 2
+    z = zi.reshape([len(sos)] + shape)
+    y, _ = signal.sosfilt(sos, ext, axis=axis, zi=z * ext[sl(0, 1)])
+    y, _ = signal.sosfilt(sos, y[sl(None, None, -1)], axis=axis, zi=z * y[sl(-1, None)])
+    y = y[sl(None, None, -1)]
+    if padlen > 0:
+        y = y[sl(padlen, -padlen)]
+    return y
 
 
 def simulated_recording(measured: Recording, dofs: Sequence[str] | Any, q: np.ndarray,

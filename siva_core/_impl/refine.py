@@ -41,6 +41,7 @@ from .processing import Processing, States
 from .recording import Recording
 from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
                        simulate, stage_force)
+from .simulate import grid as _grid
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
 #: relative standard error below which no interval is reported (simulation accuracy)
@@ -90,7 +91,7 @@ class OutputErrorProblem:
     records: list[_Record]
     processing: Processing
     backend: str = "numpy"
-    interp: str = "linear"
+    interp: str = "moments"
 
     @property
     def chain(self) -> Processing:
@@ -110,11 +111,14 @@ class OutputErrorProblem:
               processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
               theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
               backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
-              initial: str = "auto", interp: str = "linear") -> "OutputErrorProblem":
+              initial: str = "auto", interp: str | None = None) -> "OutputErrorProblem":
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
-        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets)."""
+        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets).
+        ``interp``: the measured force between samples (``stage_force``; None =
+        ``simulate.grid.MEASURED_FORCE_INTERP``, read at call time)."""
         processing = processing or Processing()
         chain = processing
+        interp = interp or _grid.MEASURED_FORCE_INTERP
         recs = [records] if isinstance(records, Recording) else list(records)
         if not recs:
             raise ValueError("output error needs at least one record")
@@ -151,10 +155,11 @@ class OutputErrorProblem:
         return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
-                         force_scale: np.ndarray | None = None) -> list[States | None]:
+                         force_scale: np.ndarray | None = None, need: str = "qva"
+                         ) -> list[States | None]:
         """Record ``k`` simulated for each set and passed through the chain, one States per
-        set (None if the simulation diverged)."""
-        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale)
+        set (None if the simulation diverged; quantities not in ``need`` are NaN)."""
+        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale, need=need)
         out: list[States | None] = []
         for b in range(len(ok)):
             if not ok[b]:
@@ -176,17 +181,20 @@ class OutputErrorProblem:
         """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
         ``record`` replaces the stored one (e.g. the same record with another force)."""
         r = record or self.records[k]
-        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r)
+        need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
+        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
         return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
 
     def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                   record: _Record | None = None) -> tuple[States, np.ndarray]:
+                   record: _Record | None = None, need: str = "qva"
+                   ) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
-        on (B, T, n) arrays (``Processing.apply_simulated``).  Returns (States with
-        (B, T', n) arrays, (B,) mask of sets whose simulation stayed finite)."""
+        on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
+        quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
+        sets whose simulation stayed finite)."""
         r = record or self.records[k]
         q0 = r.q0 if dq0 is None else r.q0 + dq0
         v0 = r.v0 if dv0 is None else r.v0 + dv0
@@ -198,7 +206,7 @@ class OutputErrorProblem:
               & np.all(np.isfinite(a), axis=(1, 2)))
         if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
             q, v, a = (np.where(ok[:, None, None], x, 0.0) for x in (q, v, a))
-        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a)
+        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a, need)
         return st, ok
 
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
@@ -311,7 +319,8 @@ def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[
     total = np.zeros(th.shape[0])
     for k, r in enumerate(prob.records):
         if chain:
-            sims = [None if st is None else st.q for st in prob.simulated_states(th, k)]
+            sims = [None if st is None else st.q
+                    for st in prob.simulated_states(th, k, need="q")]
         else:
             meas = prob.chain.apply(r.rec, structure.dofs)
             sim = simulate(structure, th, r.rec.time, r.q0, r.v0, r.force, substeps=r.substeps,
@@ -379,9 +388,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            processing: Processing | None = None, *, max_nfev: int = 50,
            quantity: str | Sequence[str] = "auto", substeps: int | str | None = "auto",
            backend: str = "auto", force_gate: str | None = "auto", initial: str = "auto",
-           interp: str = "linear", omega_h: float = OMEGA_H,
+           interp: str | None = None, omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
+           bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
@@ -410,6 +420,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``max_nfev`` bounds the cost evaluations of the final (full) stage; earlier stages get
     ``max(5, max_nfev // 4)`` each.
 
+    ``bounds``: (lower, upper) per free parameter instead of the spec's (e.g.
+    :meth:`Structure.physical_bounds`).
     ``fit_force_scale``: also fit one force multiplier per record (a nuisance parameter,
     log-scaled from 1).  An impact's response depends so strongly on its impulse that 0.2 %
     force-sensor noise in the pulse (0.1 % impulse) moves a hardening record's late response
@@ -450,8 +462,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     for k, p in enumerate(free):
         if theta0[k] == 0 and structure.parameters[p].scale:
             scale[k] = structure.parameters[p].scale
-    lo_th = np.array([_bound(structure.parameters[p].lower, -np.inf) for p in free])
-    hi_th = np.array([_bound(structure.parameters[p].upper, np.inf) for p in free])
+    if bounds is not None:  # e.g. Structure.physical_bounds(): no negative damping
+        lo_th, hi_th = (np.asarray(b, dtype=float).ravel() for b in bounds)
+    else:
+        lo_th = np.array([_bound(structure.parameters[p].lower, -np.inf) for p in free])
+        hi_th = np.array([_bound(structure.parameters[p].upper, np.inf) for p in free])
     lower, upper = _x_bounds(theta0, scale, is_log, lo_th, hi_th)
     n_dof = structure.n_dof
     if fit_initial == "auto":
@@ -555,6 +570,16 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 
 
+#: parametric-bootstrap replicates simulated together (each with its own force)
+_REPLICATE_CHUNK = 16
+#: spread of the force's shape between samples in the parametric replicates, as a
+#: fraction of the difference between reading the samples as straight lines and with
+#: their own moments (``stage_force``); 0 switches it off.  Measured on a 3-DOF chain hit
+#: by 3-5-sample pulses (docs/perf.md): the moment-matched reading leaves 0.3-0.4 of that
+#: difference as bias, which the intervals must hold
+FORCE_SHAPE_SPREAD = 0.5
+
+
 def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
                      r: np.ndarray, series: Sequence[Series], n_rep: int = 64,
                      seed: int = 1) -> np.ndarray:
@@ -565,8 +590,12 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
     change of the simulated, processed response when the force in the pulse gets a new
     draw of the force sensor's noise (its level read off the force channel outside the
     pulse, where it measures nothing but noise).  The force noise matters because its
-    effect is not stationary: it starts a free decay that stays correlated to the end."""
+    effect is not stationary: it starts a free decay that stays correlated to the end.
+    And, for impulsive records, a random share (``FORCE_SHAPE_SPREAD``) of the change
+    between reading the sampled force as straight lines and with its own moments: what a
+    pulse of a few samples leaves unknown about the force between them."""
     rng = np.random.default_rng(seed)
+    shape_rng = np.random.default_rng([seed, 20])  # its own stream: rng's draws unchanged
     E = np.stack([phase_randomized(r, series, rng) for _ in range(n_rep)])
     col = 0
     for k, rec in enumerate(prob.records):
@@ -577,13 +606,30 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
             dq = None if "dq0" not in extra else extra["dq0"][:, k]
             dv = None if "dv0" not in extra else extra["dv0"][:, k]
             base, ok = prob.record_residuals(theta, k, fs, dq, dv)
+            noisy = np.repeat(rec.force[None], n_rep, axis=0)
             for b in range(n_rep):
-                noisy = rec.force.copy()
-                noisy[pulse] += sigma * rng.standard_normal((int(pulse.sum()), noisy.shape[1]))
-                alt = dataclasses.replace(rec, force=noisy, _staged=None)
-                rb, okb = prob.record_residuals(theta, k, fs, dq, dv, record=alt)
-                if ok[0] and okb[0]:
-                    E[b, col:col + size] += (rb - base)[0]
+                noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
+                                                                noisy.shape[2]))
+            # one batched simulation (a force per set) per chunk of replicates
+            rep = lambda x, c: None if x is None else np.repeat(x, c, axis=0)
+            for b0 in range(0, n_rep, _REPLICATE_CHUNK):
+                chunk = noisy[b0:b0 + _REPLICATE_CHUNK]
+                c = len(chunk)
+                alt = dataclasses.replace(rec, force=chunk, _staged=None)
+                rb, okb = prob.record_residuals(rep(np.atleast_2d(theta), c), k, rep(fs, c),
+                                                rep(dq, c), rep(dv, c), record=alt)
+                if ok[0]:
+                    good = np.flatnonzero(okb)
+                    E[b0 + good, col:col + size] += rb[good] - base[0]
+            if FORCE_SHAPE_SPREAD > 0 and ok[0] and prob.interp != "linear":
+                # the force between its samples is unknown: a replicate's force shape
+                # varies by FORCE_SHAPE_SPREAD x (straight lines - the moment-matched
+                # reading), the scale of what sampling a short pulse leaves undetermined
+                lin = dataclasses.replace(prob, interp="linear")
+                rl, okl = lin.record_residuals(theta, k, fs, dq, dv)
+                if okl[0]:
+                    xi = shape_rng.standard_normal(n_rep)
+                    E[:, col:col + size] += np.outer(xi, FORCE_SHAPE_SPREAD * (rl - base)[0])
         col += size
     # centred: a nonlinear response to force noise has a small mean shift (second order),
     # which is the estimator's bias estimate, not a spread to sample from

@@ -537,8 +537,25 @@ def _interval(value: float, lo: float, hi: float, unit: str) -> str:
     return f"{_fmt(value)} ± {float(half):.2g}{(' ' + html.escape(unit)) if unit else ''}{rel}"
 
 
-def _recommendation(res: Any) -> str:
+def _verdict_banner(verdict: Any) -> str:
+    """The validation verdict, first thing on the page (red when rejected)."""
+    e = html.escape
+    colour = {"accepted": "#e6f4e6", "rejected": "#fbe3e3"}.get(verdict.status, "#fff4d6")
+    items = "".join(f"<li>{e(d)}</li>" for d in verdict.details)
+    steps = "".join(f"<li><code>{e(s)}</code></li>" if s.startswith("siva ") else
+                    f"<li>{e(s)}</li>" for s in verdict.next_steps)
+    return (f'<div id="verdict" class="{e(verdict.status)}" style="background:{colour};'
+            f'border:1px solid #999;padding:0.6em 1em;margin:1em 0">'
+            f"<p><b>{e(verdict.headline)}</b></p>"
+            + (f"<ul>{items}</ul>" if items else "")
+            + (f"<p>What to try next:</p><ul>{steps}</ul>" if steps else "") + "</div>")
+
+
+def _recommendation(res: Any, verdict: Any = None) -> str:
     """Which estimate to use and why, in one paragraph (what ``best`` is and how sure)."""
+    if verdict is not None and not verdict.usable:
+        return ("<p><b><code>best</code> below is what the fit found, not a recommendation"
+                "</b>: " + html.escape(verdict.headline) + ".</p>")
     refined = res.best_std is not None
     oe = (res.metrics.get("train") or {}).get("best", {}).get("output_error")
     why = ("<b>Use <code>best</code></b>: the output-error refinement of Approach III, i.e. "
@@ -561,6 +578,9 @@ def _html(est: Any, res: Any, names: Sequence[str], truth: np.ndarray | None,
           figures: list[tuple[Path, str]], sims: list[_RecordSims], note: str | None) -> str:
     e = html.escape
     units = est.structure.parameter_units() if hasattr(est.structure, "parameter_units") else {}
+    verdict = res.assessment(
+        train=" ".join(r.name for r in getattr(est, "train_recordings_", [])) or "TRAIN...",
+        val=" ".join(r.name for r in getattr(est, "val_recordings_", [])) or None)
     rows = []
     for k, p in enumerate(names):
         u = units.get(p, "")
@@ -580,10 +600,11 @@ def _html(est: Any, res: Any, names: Sequence[str], truth: np.ndarray | None,
                   _interval(II["mean"], II["ci95"][0], II["ci95"][1], u),
                   _fmt(res.approach_III[k])]
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    head = ["parameter", "unit", "use this: best ± 95 %"] + \
+    head = ["parameter", "unit", ("use this: best ± 95 %" if verdict.usable
+                                  else "best ± 95 % (NOT validated: see above)")] + \
         (["exact", "best error"] if truth is not None else []) + \
         ["Approach I mean ± 95 %", "Approach II mean ± 95 %", "Approach III"]
-    ptable = (_recommendation(res) + "<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head)
+    ptable = (_recommendation(res, verdict) + "<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head)
               + "</tr>" + "".join(rows) + "</table>")
 
     mrows = []
@@ -613,6 +634,7 @@ figure {{ margin: 1em 0 2em; }} img {{ max-width: 100%; border: 1px solid #ddd; 
 figcaption {{ color: #333; font-size: 0.9em; }}
 </style></head><body>
 <h1>SIVA identification: {e(est.structure.name)}</h1>
+{_verdict_banner(verdict)}
 <p>{len(res.history.get('loss_d', []))} epochs, converged at epoch {e(str(res.converged_epoch))};
 Approach I: {len(res.samples_I)} samples; Approach II: {len(res.samples_II)} epochs.
 Final discriminator loss {_fmt(disc.get('loss_d'))} (ln 4 = {LN4:.4f}, distance

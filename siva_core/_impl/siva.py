@@ -8,7 +8,10 @@ so the final estimate does not inherit the chain's bias.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -115,7 +118,15 @@ class Identification:
                 "timing_s": self.timing_s, "baselines": self.baselines,
                 "training": {"epochs": self.epochs, "converged_epoch": self.converged_epoch,
                              "n_ensemble": int(len(self.samples_II))},
-                "processing": _processing_json(self.processing), "notes": self.notes}
+                "processing": _processing_json(self.processing), "notes": self.notes,
+                "assessment": self.assessment().to_json()}
+
+    def assessment(self, **commands: str) -> Any:
+        """The verdict (accepted / rejected, unphysical or undetermined values, what to try
+        next): :func:`siva_core._impl.assessment.assess`."""
+        from .assessment import assess
+
+        return assess(self, **commands)
 
 
 def _stats(d: dict) -> dict:
@@ -172,6 +183,9 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         raise ValueError("recommend_best needs at least one candidate and one training record")
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
+    lo, hi = st.physical_bounds()
+    moved = physical_candidates(cand, lo, hi, names)
+    cand = moved.candidates
     mse = displacement_mse(st, cand, train, processing)
     theta_III = cand[int(np.nanargmin(mse))].copy() if np.isfinite(mse).any() else cand[-1].copy()
     timing["approach_III"] = time.perf_counter() - t0
@@ -183,7 +197,8 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         # parameter so that sensor error is not absorbed by the structure's parameters.
         gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
         forced = all(r.has_force(st.dofs) for r in train)
-        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains)
+        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains,
+                      bounds=(lo, hi))
         c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
         if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
             # Gauss-Newton std, inflated for the correlation of filtered residuals
@@ -197,8 +212,53 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
             oe = float(c_ref[0])
             note = f"refinement did not improve on Approach III ({res.message})"
     timing["refine"] = time.perf_counter() - t0
+    outside = [n for n, v, a, b in zip(names, best, lo, hi) if not a <= v <= b]
+    if outside:  # cannot happen through the bounded refinement; a last guard all the same
+        best = np.clip(best, lo, hi)
+        note = ((note + "; ") if note else "") + (
+            f"best: {', '.join(outside)} clipped to the physical bounds")
+    if moved.names:
+        note = ((note + "; ") if note else "") + (
+            f"Approach III candidates with {', '.join(moved.names)} outside the physical "
+            f"bounds (e.g. negative damping) were moved inside before choosing")
     return Recommendation(np.asarray(best, dtype=float), best_std, note, theta_III, oe, refined,
                           res, timing)
+
+
+@dataclass
+class _Moved:
+    candidates: np.ndarray
+    names: list[str]
+
+
+def physical_candidates(cand: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        names: Sequence[str] | None = None) -> _Moved:
+    """Candidates with every value strictly inside the physical bounds
+    (:meth:`Structure.physical_bounds`): a value below ``lo`` is reflected above it (a
+    damping of -0.9 becomes 0.9: same magnitude, physical sign), one on the bound is moved
+    1e-3 of the parameter's typical size inside (the refinement's log scale cannot start at
+    0).  Returns the moved candidates and the indices (or ``names``) of the parameters that
+    had to move."""
+    cand = np.array(cand, dtype=float, copy=True)
+    typical = np.nanmedian(np.abs(cand), axis=0)
+    typical = np.where(np.isfinite(typical) & (typical > 0), typical, 1.0)
+    moved: list[int] = []
+    for k in range(cand.shape[1]):
+        col = cand[:, k]
+        bad = ~((col > lo[k]) & (col < hi[k])) & np.isfinite(col)
+        if not bad.any():
+            continue
+        moved.append(k)
+        gap = 1e-3 * typical[k]
+        below = col <= lo[k]
+        col[below] = lo[k] + np.maximum(lo[k] - col[below], gap)
+        above = col >= hi[k]
+        col[above] = hi[k] - np.maximum(col[above] - hi[k], gap)
+        if np.isfinite(lo[k]) and np.isfinite(hi[k]):
+            out = ~((col > lo[k]) & (col < hi[k]))
+            col[out] = 0.5 * (lo[k] + hi[k])
+    labels = [names[k] for k in moved] if names is not None else [str(k) for k in moved]
+    return _Moved(cand, labels)
 
 
 class Siva:
@@ -271,10 +331,23 @@ class Siva:
 
         # --- SIVA training (until converged, then the Approach II harvest)
         settings = self._settings()
-        trainer = SivaTrainer(st, settings)
+        # with the output-error phase to follow, this phase only has to find the basin and
+        # supply Approach III's candidates: converged at a looser tolerance, no step change,
+        # a short harvest (docs/perf.md); the output-error phase gets ``settings`` back
+        handover = settings.fit_target == "output"
+        phase1 = (dataclasses.replace(settings, conv_rel_tol=settings.handover_rel_tol,
+                                      lr_converged=None, ensemble_burn_in=0)
+                  if handover else settings)
+        trainer = SivaTrainer(st, phase1)
         trainer.set_data(self.train_states_, self.val_states_)
+        if handover and trainer.train is not None:
+            full = max(1, math.ceil(len(trainer.train) / settings.batch_size))
+            trainer.settings.steps_per_epoch = min(settings.steps_per_epoch or full,
+                                                   settings.handover_steps)
         t0 = time.perf_counter()
         eta = Eta(settings.max_epochs)  # an upper bound: training stops once converged
+        harvest = (min(settings.handover_epochs, settings.ensemble_epochs) if handover
+                   else settings.ensemble_epochs)
         while trainer.epoch < settings.max_epochs:
             log = trainer.run_epoch()
             if self.progress and (log.epoch % self.progress_every == 0):
@@ -282,14 +355,14 @@ class Siva:
                 self._say(f"{eta.text(log.epoch + 1)}  D={log.loss_d:.4f} (ln4=1.3863)  "
                           f"adv={log.loss_adv:.4f}  mse={log.loss_mse:.3e}  "
                           f"{'converged ' if log.converged else ''}{rel}")
-            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+            if trainer.converged and len(trainer.ensemble) >= harvest:
                 break
         timing["training"] = time.perf_counter() - t0
         self.trainer_ = trainer
         notes: list[str] = []
         if not trainer.converged:
             notes.append(f"not converged after {trainer.epoch} epochs: Approach II uses the "
-                         f"last {settings.ensemble_epochs} epochs")
+                         f"last {harvest} epochs")
         self._say(f"training: {trainer.epoch} epochs in {timing['training']:.1f} s, "
                   f"converged at epoch {trainer.monitor.converged_at}")
 
@@ -297,7 +370,7 @@ class Siva:
         # batched simulation of the candidates) and ``best``: the output-error refinement
         # from it (shared with the service: ``recommend_best``)
         samples_ee = (trainer.ensemble.samples if len(trainer.ensemble)
-                      else np.array(trainer.history["theta"][-settings.ensemble_epochs:]))
+                      else np.array(trainer.history["theta"][-harvest:]))
         rec = recommend_best(st, samples_ee[-self.n_candidates:], train, proc, refine=self.refine)
         theta_III, best, best_std = rec.theta_III, rec.theta, rec.std
         self.refine_ = rec.refine_result
@@ -310,6 +383,7 @@ class Siva:
         # --- the output-error phase: SIVA judged on what was measured, through the chain
         if settings.fit_target == "output":
             t0 = time.perf_counter()
+            trainer.settings = settings
             self._output_error_phase(trainer, settings, best, train, val, proc, notes)
             timing["training_output_error"] = time.perf_counter() - t0
 
@@ -319,7 +393,9 @@ class Siva:
         if len(trainer.ensemble):
             samples_II = trainer.ensemble.samples
         else:
-            samples_II = np.array(trainer.history["theta"][-settings.ensemble_epochs:])
+            n_ii = (settings.oe_ensemble_epochs if settings.fit_target == "output"
+                    else settings.ensemble_epochs)
+            samples_II = np.array(trainer.history["theta"][-n_ii:])
         summ_I = normal_summary(samples_I, names, ess=False)
         summ_II = normal_summary(samples_II, names, floor_rel=NUMERICAL_REL_STD)
         timing["approach_I_II"] = time.perf_counter() - t0
@@ -328,8 +404,17 @@ class Siva:
             # when the refinement stopped in a worse basin (measured: 2 of 20 LO-NO runs,
             # validation statistic 64 and 1723) that step finds the better one: refine again
             # from Approach II's mean and keep whichever simulates the records better
+            # (skipped when Approach II's mean lies within 3 of best's standard errors and
+            # within 0.5 % of it: the same basin, where a second refinement returns the
+            # same optimum and is not kept; a wrong basin with a validation statistic of
+            # 64+ is assumed to sit farther away -- an assumption, not re-measured)
             t0 = time.perf_counter()
-            better = self._rerefine(best, samples_II.mean(0), train, val, proc)
+            mean_II = samples_II.mean(0)
+            gap = np.abs(mean_II - best)
+            same_basin = (best_std is not None and np.all(np.isfinite(best_std))
+                          and np.all(gap <= 3.0 * np.asarray(best_std))
+                          and np.all(gap <= 5e-3 * np.abs(best)))
+            better = None if same_basin else self._rerefine(best, mean_II, train, val, proc)
             if better is not None:
                 rec, best, best_std = better, better.theta, better.std
                 self.refine_ = better.refine_result
@@ -395,16 +480,29 @@ class Siva:
             return
         trainer.use_output_error(lin_tr, lin_va)
         start = trainer.epoch
-        limit = start + max(settings.oe_min_epochs + 4 * settings.conv_window,
-                            settings.max_epochs // 2) + settings.ensemble_epochs
+        limit = start + max(settings.oe_min_epochs + 4 * settings.oe_conv_window,
+                            settings.max_epochs // 2) + settings.oe_ensemble_epochs
         eta = Eta(limit, start=start)  # an upper bound again
+        import copy
+
+        good = copy.deepcopy(trainer.generator.state_dict())
         while trainer.epoch < limit:
             log = trainer.run_epoch()
+            if not (np.all(np.isfinite(log.theta)) and np.isfinite(log.loss_mse)):
+                # the linearised output error is flat along a direction the records do not
+                # determine; the generator ran off along it.  Keep the last finite state.
+                trainer.generator.load_state_dict(good)
+                trainer.ensemble.drop_nonfinite()
+                notes.append(f"output-error phase stopped at epoch {log.epoch}: the generator "
+                             "left the finite range (the records do not determine every "
+                             "parameter); Approach I/II are from the last finite epoch")
+                break
+            good = copy.deepcopy(trainer.generator.state_dict())
             if self.progress and (log.epoch % self.progress_every == 0):
                 rel = ", ".join(f"{p}={v:.5g}" for p, v in zip(st.free, log.theta))
                 self._say(f"{eta.text(log.epoch + 1)}  [output error]  D={log.loss_d:.4f}  "
                           f"fit={log.loss_mse:.3e}  {'converged ' if log.converged else ''}{rel}")
-            if trainer.converged and len(trainer.ensemble) >= settings.ensemble_epochs:
+            if trainer.converged and len(trainer.ensemble) >= settings.oe_ensemble_epochs:
                 break
         if not trainer.converged:
             notes.append("output-error phase not converged: Approach II uses its last epochs")
@@ -421,6 +519,8 @@ class Siva:
         # (Approach II's mean itself is not compared: its force scales were profiled out,
         # which plain output error does not do)
         recs = [*train, *val]
+        if not np.all(np.isfinite(mean_II)):
+            return None
         rec = recommend_best(self.structure, mean_II[None], train, proc)
         if not rec.refined:
             return None

@@ -20,7 +20,7 @@ from .elements import REGISTRY, ElementKind
 
 GROUND = "ground"
 _TOP_KEYS = frozenset({"name", "dofs", "mass", "elements", "parameters", "forces",
-                       "description", "notes"})
+                       "channels", "description", "notes"})
 _ELEMENT_KEYS = frozenset({"kind", "between", "params", "name", "description"})
 _PARAM_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -38,6 +38,7 @@ class ParameterInfo:
     fixed: float | None = None
     lower: float | None = None
     upper: float | None = None
+    initial: float | None = None   # a nominal value (checks before training: the modes)
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,9 @@ class Structure:
     parameters: dict[str, ParameterInfo]
     force_gains: dict[str, str | float] = field(default_factory=dict)
     spec: dict[str, Any] = field(default_factory=dict)
+    #: ``[channels]``: how this system's files name and scale their channels
+    channel_map: dict[str, str] = field(default_factory=dict)
+    channel_units: dict[str, str] = field(default_factory=dict)
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -222,16 +226,17 @@ class Structure:
             where = f"parameters.{pname}"
             if not isinstance(setting, Mapping):
                 raise SpecError(f"{where}: must be a table (scale, fixed, lower, upper)")
-            unknown = set(setting) - {"scale", "fixed", "lower", "upper"}
+            unknown = set(setting) - {"scale", "fixed", "lower", "upper", "initial"}
             if unknown:
                 raise SpecError(f"{where}: unknown setting(s) {sorted(unknown)} "
-                                "(known: scale, fixed, lower, upper)")
+                                "(known: scale, fixed, lower, upper, initial)")
             info = ParameterInfo(
                 pname,
                 scale=_opt_number(setting.get("scale"), f"{where}.scale"),
                 fixed=_opt_number(setting.get("fixed"), f"{where}.fixed"),
                 lower=_opt_number(setting.get("lower"), f"{where}.lower"),
                 upper=_opt_number(setting.get("upper"), f"{where}.upper"),
+                initial=_opt_number(setting.get("initial"), f"{where}.initial"),
             )
             if info.scale is not None and not info.scale > 0:
                 raise SpecError(f"{where}.scale: must be positive, got {info.scale}")
@@ -250,7 +255,16 @@ class Structure:
             spec = json.loads(json.dumps(dict(data)))
         except (TypeError, ValueError) as exc:
             raise SpecError(f"spec holds a value JSON cannot carry ({exc})") from None
-        return cls(name, list(dofs), mass, elements, parameters, gains, spec)
+        cmap, cunits = _channels(data.get("channels"), dofs)
+        return cls(name, list(dofs), mass, elements, parameters, gains, spec, cmap, cunits)
+
+    def read_options(self, channel_map: Mapping[str, str] | None = None,
+                     units: Mapping[str, str] | None = None) -> dict[str, Any]:
+        """Keyword arguments of :meth:`Recording.read` for this system's files: the spec's
+        ``[channels]`` mapping and units, overridden by ``channel_map`` / ``units`` (the
+        command line's ``--map``/``--unit``, an upload's query)."""
+        return {"channel_map": {**self.channel_map, **(channel_map or {})} or None,
+                "units": {**self.channel_units, **(units or {})} or None}
 
     # ---------------------------------------------------------------- parameters
     @property
@@ -308,6 +322,21 @@ class Structure:
                 if p in lin and c not in el.kind.linear:
                     lin[p] = False
         return [p for p, ok in lin.items() if ok]
+
+    def physical_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) per free parameter: the spec's ``lower``/``upper`` where given,
+        else 0 below a coefficient a passive element needs non-negative (a damper's c, a
+        spring's k: ``ElementKind.nonnegative``), else unbounded.  What SIVA may recommend."""
+        nonneg = {p for el in self.elements
+                  for c, p in zip(el.kind.coefficients, el.params)
+                  if c in getattr(el.kind, "nonnegative", ())}
+        lo, hi = [], []
+        for p in self.free:
+            info = self.parameters[p]
+            lo.append(info.lower if info.lower is not None
+                      else (0.0 if p in nonneg else -np.inf))
+            hi.append(info.upper if info.upper is not None else np.inf)
+        return np.array(lo, dtype=float), np.array(hi, dtype=float)
 
     # ---------------------------------------------------------------- force inputs
     def force_gain(self, dof: str) -> str | float:
@@ -420,3 +449,41 @@ def _number(x: Any, where: str) -> float:
 
 def _opt_number(x: Any, where: str) -> float | None:
     return None if x is None else _number(x, where)
+
+
+def _channels(section: Any, dofs: list[str]) -> tuple[dict[str, str], dict[str, str]]:
+    """The spec's ``[channels]`` table: ``map = {"Accel LO" = "acc_LO"}`` (stored channel
+    name -> column name) and ``units = {acc_LO = "g"}`` (declared unit per column)."""
+    from .formats import QUANTITIES, UNIT_FACTORS, split_unit, unit_factor
+
+    if section is None:
+        return {}, {}
+    if not isinstance(section, Mapping):
+        raise SpecError("'channels' must be a table with 'map' and/or 'units'")
+    extra = [k for k in section if k not in ("map", "units")]
+    if extra:
+        raise SpecError(f"channels.{extra[0]}: unknown key (known: map, units)")
+    cmap, units = section.get("map", {}) or {}, section.get("units", {}) or {}
+    for key, table in (("map", cmap), ("units", units)):
+        if not isinstance(table, Mapping) or not all(
+                isinstance(k, str) and isinstance(v, str) for k, v in table.items()):
+            raise SpecError(f"channels.{key}: must be a table of names to strings")
+
+    def column_ok(col: str) -> bool:
+        col = split_unit(col)[0]
+        qty, _, dof = col.partition("_")
+        return col == "time" or (qty in QUANTITIES and dof in dofs)
+
+    for src, dst in cmap.items():
+        if not column_ok(dst):
+            raise SpecError(f"channels.map.{src}: {dst!r} is not a column of this model (time, "
+                            f"or acc_/vel_/disp_/force_ + one of {dofs})")
+    for col, unit in units.items():
+        target = split_unit(cmap.get(col, col))[0]
+        if not column_ok(target):
+            raise SpecError(f"channels.units.{col}: not a column of this model")
+        qty = "time" if target == "time" else target.partition("_")[0]
+        if unit_factor(unit, qty) is None:
+            raise SpecError(f"channels.units.{col}: {unit!r} is not a unit of {qty} (known: "
+                            f"{', '.join(UNIT_FACTORS[qty])})")
+    return dict(cmap), dict(units)

@@ -39,6 +39,7 @@ from .convergence import ConvergenceMonitor
 from .ensemble import Ensemble
 from .linearized import Linearization
 from .networks import LN4, Discriminator, ParameterGenerator
+from .optim import FastAdam
 from .processing import States
 from .structure import Structure
 
@@ -72,8 +73,20 @@ class SivaSettings:
     oe_lr: float = 0.05          # generator/discriminator step in the output-error phase
     oe_steps: int = 25           # steps per epoch in that phase
     oe_batch: int = 64           # parameter sets (and validation samples) per step
-    oe_min_epochs: int = 30      # epochs before its convergence is judged
+    oe_min_epochs: int = 20      # epochs before its convergence is judged
+    oe_conv_window: int = 10     # its convergence window: the generator starts at the
+    #                              anchor, already near the optimum (docs/perf.md)
     oe_noise: int = 64           # parametric-bootstrap replicates drawn from per epoch
+    oe_burn_in: int = 5          # output-error epochs skipped after its convergence (its
+    #                              step does not change at convergence, unlike phase 1's)
+    oe_ensemble_epochs: int = 100  # Approach II samples harvested in that phase (``Siva``)
+    # with the output-error phase to follow (``Siva.fit``), the equation-error phase only
+    # has to reach the basin and supply Approach III's candidates (the anchor; the
+    # reported Approach II is the later phase's): it is judged converged at a looser
+    # tolerance, keeps its step and harvests a few epochs (docs/perf.md)
+    handover_epochs: int = 30
+    handover_rel_tol: float = 2e-2
+    handover_steps: int = 16     # at most this many steps per epoch in that phase
 
     @classmethod
     def paper(cls, **kw: Any) -> "SivaSettings":
@@ -245,8 +258,8 @@ class SivaTrainer:
             self.generator = ParameterGenerator(n, s.latent_dim, scientific=s.scientific)
             n_in = structure.n_dof * (3 if s.disc_input == "state_acc" else 1)
             self.discriminator = Discriminator(n_in)
-        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=s.lr, foreach=True)
-        self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=s.lr_d or s.lr,
+        self.opt_g = FastAdam(self.generator.parameters(), lr=s.lr, foreach=True)
+        self.opt_d = FastAdam(self.discriminator.parameters(), lr=s.lr_d or s.lr,
                                       foreach=True)
         self.rng = torch.Generator().manual_seed(s.seed)
         self.epoch = 0
@@ -362,27 +375,38 @@ class SivaTrainer:
         h["theta"].append(theta_epoch)
         was = self.monitor.converged
         conv = self.monitor.update(e, theta_epoch)
-        harvested = bool(conv and was
-                         and e > self.monitor.converged_at + self.settings.ensemble_burn_in)
+        s = self.settings
+        burn_in = s.oe_burn_in if self.oe is not None else s.ensemble_burn_in
+        harvested = bool(conv and was and e > self.monitor.converged_at + burn_in)
         if harvested:
             self.ensemble.add(theta_epoch, e)
         return e, conv, harvested
 
     # ------------------------------------------------------------------ output-error phase
-    def use_output_error(self, train: Linearization, val: Linearization | None = None) -> None:
+    def use_output_error(self, train: Linearization, val: Linearization | None = None, *,
+                         resume: bool = False) -> None:
         """Judge the generator from now on by the output error linearised at ``train.theta``
         (chain-consistent: see linearized.py).  The generator switches to local coordinates
         around the anchor (one unit = one standard error), the convergence monitor and the
         Approach II ensemble restart (equation-error samples are biased), and each epoch
-        fits the anchor's residuals plus one parametric-bootstrap noise replicate."""
+        fits the anchor's residuals plus one parametric-bootstrap noise replicate.
+
+        ``resume=True``: a trainer restored by ``load_state_dict`` from a checkpoint taken in
+        this phase gets the same linearisation back and nothing else changes (networks,
+        optimisers, monitor and ensemble are the checkpoint's): training continues exactly."""
+        if resume:
+            self.oe = _OutputErrorPhase.of(train, val, self.epoch)
+            if not hasattr(self, "oe_targets_"):
+                self.oe_targets_ = []
+            return
         s = self.settings
         step = train.step_matrix()
         self.generator.set_local(torch.from_numpy(train.theta), torch.from_numpy(step),
                                  torch.from_numpy(train.is_log))
-        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=s.oe_lr, foreach=True)
-        self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=s.oe_lr, foreach=True)
+        self.opt_g = FastAdam(self.generator.parameters(), lr=s.oe_lr, foreach=True)
+        self.opt_d = FastAdam(self.discriminator.parameters(), lr=s.oe_lr, foreach=True)
         self.oe = _OutputErrorPhase.of(train, val, self.epoch)
-        self.monitor = ConvergenceMonitor(window=s.conv_window, rel_tol=s.conv_rel_tol,
+        self.monitor = ConvergenceMonitor(window=s.oe_conv_window, rel_tol=s.conv_rel_tol,
                                           min_epochs=self.epoch + s.oe_min_epochs)
         self.ensemble.reset()
         self.oe_targets_: list[np.ndarray] = []

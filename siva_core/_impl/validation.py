@@ -82,14 +82,24 @@ def validation_score(structure: Any, theta: Any, records: Sequence[Recording],
     per: dict[str, dict[str, Any]] = {}
     num = den = n_eff_tot = 0.0
     for rec in recs:
+        # a window held out of a longer record (``hold_out``: the last part of one hit's
+        # decay) is predicted from that record's start, hit included: its own initial state
+        # mid-decay is only known through integration, which is not what is being tested
+        whole, t_from = rec.meta.get("held_out_of", (rec, None))
         try:
-            lin = linearize(structure, np.asarray(theta, dtype=float), [rec], processing)
+            lin = linearize(structure, np.asarray(theta, dtype=float), [whole], processing)
         except ValueError as exc:
             per[rec.name] = {"statistic": None, "error": str(exc)}
             num, den = math.inf, 1.0
             continue
         res = lin.residual_series(0)
-        nv, tau = processed_noise(structure, rec, lin.quantities[0], processing)
+        if t_from is not None:
+            res = res[_processed_time(processing, whole, structure.dofs, len(res)) >= t_from]
+            if len(res) < 8:
+                per[rec.name] = {"statistic": None, "error": "held-out window too short"}
+                num, den = math.inf, 1.0
+                continue
+        nv, tau = processed_noise(structure, whole, lin.quantities[0], processing)
         nv = np.maximum(nv, 1e-300)
         T_dof = np.mean(res ** 2, axis=0) / nv
         n_eff = len(res) / max(tau, 1.0)
@@ -107,6 +117,20 @@ def validation_score(structure: Any, theta: Any, records: Sequence[Recording],
             "meaning": ("statistic = held-out residual power / measurement-noise power "
                         "(1 = explains all but the noise); p_value of H0 'unexplained power "
                         f"<= {tolerance:g} x noise power'; accepted when p >= {alpha:g}")}
+
+
+def _processed_time(processing: Processing, rec: Recording, dofs: Sequence[str],
+                    n: int) -> np.ndarray:
+    """Time [s] of each of the ``n`` processed samples of ``rec`` (start, trim, decimation
+    as in ``Processing._finish``)."""
+    k = processing.decimation(rec.fs)
+    edge = int(round(processing.trim * rec.fs))
+    i0 = max(processing.start_index(rec, dofs), edge)
+    t = rec.time[i0:len(rec) - edge:k][:n]
+    if len(t) < n:
+        t = np.r_[t, t[-1] + rec.dt * k * np.arange(1, n - len(t) + 1)] if len(t) else \
+            rec.time[0] + rec.dt * k * np.arange(n)
+    return t
 
 
 def _p_value(T: float, n_eff: float, tolerance: float) -> float:

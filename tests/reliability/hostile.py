@@ -209,3 +209,93 @@ def catalogue() -> list[Case]:
 #: measured around them (issue 9: a 1 MB upload must never grow the server by > 200 MB)
 BOMBS = ("rec-npz-bomb-declared-column", "rec-npz-bomb-ignored-column", "rec-mcap-zstd-bomb",
          "rec-npz-20000-arrays")
+
+
+# --------------------------------------------------------------------------- big bodies
+# Issue 19: uploads that cost the server many times their size.  Each record is valid up to
+# its last row, whose time steps back, so the whole body is parsed before the 4xx (and
+# nothing is stored or trained): the server's peak memory is the parse's.
+def _rows(n: int, fs: float = 2000.0) -> np.ndarray:
+    t = np.arange(n) / fs
+    x = 1e-3 * np.exp(-0.5 * t) * np.sin(2 * np.pi * 12.3 * t)
+    values = np.column_stack([t, x])
+    values[-1, 0] = 0.0  # time steps back on the last row
+    return values
+
+
+def csv_big(mbytes: float) -> bytes:
+    """A CSV of about ``mbytes`` MB (2 columns, ~36 characters a row)."""
+    n = int(mbytes * 2**20 / 36)
+    buf = io.StringIO()
+    buf.write("time,disp_x\n")
+    np.savetxt(buf, _rows(n), delimiter=",", fmt="%.10e")
+    return buf.getvalue().encode()
+
+
+def csv_one_line(mbytes: float) -> bytes:
+    """A header and one data line of ``mbytes`` MB (``0,`` repeated)."""
+    return b"time,disp_x\n" + b"0," * int(mbytes * 2**20 / 2) + b"0\n"
+
+
+def csv_short_rows(mbytes: float) -> bytes:
+    """The most rows per byte: ``0,0`` lines (many values, each costing 8 bytes parsed)."""
+    return b"time,disp_x\n" + b"0,0\n" * int(mbytes * 2**20 / 4)
+
+
+def json_big(mbytes: float) -> bytes:
+    """A JSON recording of about ``mbytes`` MB."""
+    n = int(mbytes * 2**20 / 36)
+    v = _rows(n)
+    return json.dumps({"time": v[:, 0].tolist(), "disp_x": v[:, 1].tolist()}).encode()
+
+
+def lvm_big(mbytes: float) -> bytes:
+    """A LabVIEW text file of about ``mbytes`` MB."""
+    n = int(mbytes * 2**20 / 36)
+    head = ("LabVIEW Measurement\t\nSeparator\tTab\nDecimal_Separator\t.\nX_Columns\tOne\n"
+            "***End_of_Header***\t\nChannels\t1\n***End_of_Header***\t\nX_Value\tdisp_x\n")
+    buf = io.StringIO()
+    buf.write(head)
+    np.savetxt(buf, _rows(n), delimiter="\t", fmt="%.10e")
+    return buf.getvalue().encode()
+
+
+def mcap_json_bomb(mib: int = 127) -> bytes:
+    """A small MCAP whose one zstd chunk holds ``mib`` MiB of JSON numbers on /recording
+    (its declared size is under the 128 MiB absolute limit)."""
+    from mcap.writer import CompressionType, Writer
+
+    n = (mib << 20) // 4
+    data = b'{"time":[' + b"0," * n + b'0],"disp_x":[' + b"0," * n + b"0]}"
+    buf = io.BytesIO()
+    w = Writer(buf, compression=CompressionType.ZSTD, chunk_size=1 << 30)
+    w.start()
+    sid = w.register_schema("siva.Recording", "jsonschema", b"{}")
+    cid = w.register_channel("/recording", "json", sid)
+    w.add_message(cid, log_time=1, publish_time=1, data=data, sequence=0)
+    w.finish()
+    return buf.getvalue()
+
+
+def mat_bomb(mib: int = 120) -> bytes:
+    """A compressed MATLAB file whose ``disp_x`` decompresses to ``mib`` MiB of zeros."""
+    import scipy.io
+
+    n = (mib << 20) // 8
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"time": np.arange(400) / 1e3, "disp_x": np.zeros(n)},
+                     do_compression=True, oned_as="column")
+    return buf.getvalue()
+
+
+#: (id, content type, body builder) of the big hostile uploads; sizes in MB of body
+BIG_UPLOADS = (
+    ("mcap-zstd-127MiB-json", "application/x-mcap", lambda mb: mcap_json_bomb(127)),
+    ("npz-bomb-120MiB", "application/x-npz", lambda mb: npz_bomb(True, 120)),
+    ("mat-bomb-120MiB", "application/x-matlab-data", lambda mb: mat_bomb(120)),
+    ("csv-big", "text/csv", csv_big),
+    ("csv-one-line", "text/csv", csv_one_line),
+    ("csv-short-rows", "text/csv", csv_short_rows),
+    ("json-big", "application/json", json_big),
+    ("lvm-big", "application/x-lvm", lvm_big),
+)

@@ -83,7 +83,11 @@ def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
         assert best["output_error"] is not None and best["output_error"] < 1e-6
     # the headline is best from then on; the ensemble stays under its own key
     assert est["estimate_source"] == "best" and est["converged"]
-    assert est["ensemble_source"] == "approach_II"
+    # (best starts from the samples since convergence; then the output-error phase restarts
+    # the ensemble at its anchor, so it may be the generator's spread, provisional, for now)
+    assert est["ensemble_source"] in ("approach_II", "generator")
+    if est["ensemble_state"] != "final":
+        assert all("ci95" not in s for s in est["ensemble"].values())
     assert {p: s["mean"] for p, s in est["parameters"].items()} == \
         {p: b["value"] for p, b in best["parameters"].items()}
     for p, true in truth.items():

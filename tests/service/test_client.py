@@ -34,11 +34,17 @@ def small(name: str, offset: int = 0) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory):
+def served(tmp_path_factory: pytest.TempPathFactory):
+    """(base URL, data directory) of one real server for the module."""
     data = tmp_path_factory.mktemp("client-data")
     st = Settings(data_dir=data, api_token=TOKEN, snapshot_every=2)
     with ServerThread(st) as url:
-        yield url
+        yield url, data
+
+
+@pytest.fixture(scope="module")
+def server(served) -> str:
+    return served[0]
 
 
 def test_register_upload_estimate_round_trip(server: str, tmp_path: Path) -> None:
@@ -177,20 +183,20 @@ def test_cli_commands(server: str, tmp_path: Path, capsys: pytest.CaptureFixture
                       monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("SIVA_URL", server)
     monkeypatch.setenv("SIVA_API_TOKEN", TOKEN)
-    code, out, _ = _cli(["register", "cli", str(SPEC)], capsys)
+    code, out, _ = _cli(["register", "cli", str(SPEC), "--json"], capsys)
     assert code == 0 and json.loads(out)["name"] == "cli"
     (tmp_path / "train").mkdir()
     (tmp_path / "val").mkdir()
     (tmp_path / "train" / "t.csv").write_bytes(small("train_v5.csv"))
     (tmp_path / "val" / "v.csv").write_bytes(small("val_v3.csv"))
-    code, out, _ = _cli(["upload-folder", "cli", str(tmp_path)], capsys)
+    code, out, _ = _cli(["--json", "upload-folder", "cli", str(tmp_path)], capsys)
     acks = json.loads(out)
     assert code == 0 and [a["role"] for a in acks] == ["train", "validation"]
     extra = tmp_path / "t2.csv"
     extra.write_bytes(small("train_v5.csv", offset=3))
-    code, out, _ = _cli(["upload", "cli", str(extra), "--role", "train"], capsys)
+    code, out, _ = _cli(["upload", "cli", str(extra), "--role", "train", "--json"], capsys)
     assert code == 0 and json.loads(out)["role"] == "train"
-    code, out, _ = _cli(["recordings", "cli"], capsys)
+    code, out, _ = _cli(["recordings", "cli", "--json"], capsys)
     assert len(json.loads(out)["recordings"]) == 3
     deadline = time.monotonic() + 120
     while True:
@@ -209,9 +215,10 @@ def test_cli_commands(server: str, tmp_path: Path, capsys: pytest.CaptureFixture
     assert code == 0 and "parameter" in out and "N/m³" in out and "95 % interval" in out
     assert not out.lstrip().startswith("{")
     code, out, _ = _cli(["drift", "cli", "--watch", "--interval", "0.1", "--count", "2"], capsys)
-    assert code == 0 and out.splitlines()[0].split()[:3] == ["epoch", "time", "converged"]
+    assert code == 0 and out.splitlines()[0].split()[:2] == ["epoch", "time"]
+    assert "converged" in out.splitlines()[0]
     assert "k [N/m]" in out.splitlines()[0]
-    code, out, _ = _cli(["drift", "reset", "cli"], capsys)
+    code, out, _ = _cli(["drift", "reset", "cli", "--json"], capsys)
     assert code == 0 and json.loads(out)["alarms"] == []
     # errors: the server's detail on stderr, exit 1; a wrong token is a 401
     code, _, err = _cli(["estimate", "missing"], capsys)
@@ -259,10 +266,16 @@ def test_dockerfile_builds_what_the_repo_has() -> None:
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert f"torch=={args['TORCH_VERSION']}" in pyproject["project"]["dependencies"]
     runs = [a for k, a in steps if k == "RUN"]
+    # torch first (its own layer), then the rest: all from requirements.lock, hash-checked
     torch_run = next(r for r in runs if "torch==" in r)
-    assert runs.index(torch_run) < next(i for i, r in enumerate(runs) if "pip install -c" in r
-                                        and " . " in r)
-    assert "--index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
+    rest = next(i for i, r in enumerate(runs) if "-r /tmp/requirements.lock" in r)
+    assert runs.index(torch_run) < rest
+    for r in (torch_run, runs[rest]):
+        assert "--require-hashes --no-deps" in r
+    assert "--no-deps --no-build-isolation ." in runs[rest]
+    assert "--extra-index-url" in torch_run and "whl/cpu" in args["TORCH_INDEX_URL"]
+    lock = (ROOT / "requirements.lock").read_text()
+    assert f"\ntorch=={args['TORCH_VERSION']}+cpu " in lock
     for k, a in steps:
         if k == "COPY":
             *sources, _dest = shlex.split(a)
@@ -299,6 +312,21 @@ def test_compose_file() -> None:
     hc = svc["healthcheck"]["test"]
     assert hc[0] == "CMD" and any("/healthz" in part for part in hc)
     compile(hc[-1], "<healthcheck>", "exec")
+
+
+@pytest.mark.parametrize("text, mb", [("3.229MB", "3.229"), ("3.229 MB", "3.229"),
+                                      ("612kB", "0.612"), ("1.2GB", "1200.000"),
+                                      ("850B", "0.001"), ("25MB", "25.000")])
+def test_smoke_reads_docker_context_sizes_with_or_without_a_space(text: str, mb: str) -> None:
+    """docker prints "3.229MB" (issue 19: the smoke failed, it expected "3.229 MB")."""
+    import subprocess
+
+    out = subprocess.run(["bash", str(DOCKER / "smoke.sh"), "--context-mb", text],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0 and out.stdout.strip() == mb, (out.stdout, out.stderr)
+    bad = subprocess.run(["bash", str(DOCKER / "smoke.sh"), "--context-mb", "lots"],
+                         capture_output=True, text=True, timeout=30)
+    assert bad.returncode != 0
 
 
 def test_docker_context_is_small_and_has_what_copy_needs() -> None:
@@ -345,15 +373,16 @@ def test_upload_folder_skips_what_is_not_a_recording(server: str, tmp_path: Path
     (tmp_path / "b_notes.csv").write_text("this is not a recording\n")
     (tmp_path / "photo.jpg").write_bytes(b"\xff\xd8\xff")
     (tmp_path / "val_c.csv").write_bytes(small("val_v3.csv"))
-    code, out, err = _cli(["upload-folder", "skips", str(tmp_path)], capsys)
+    code, out, err = _cli(["upload-folder", "skips", str(tmp_path), "--json"], capsys)
     assert code == 0, err
     assert [Path(a["path"]).name for a in json.loads(out)] == ["a.csv", "val_c.csv"]
     assert "warning: skipping" in err and "photo.jpg" in err and "b_notes.csv" in err
     # delete: asks (no tty here: refused without --yes), then deletes
     code, _, err = _cli(["delete", "skips"], capsys)
     assert code == 2 and "--yes" in err
-    code, out, _ = _cli(["delete", "skips", "--yes"], capsys)
-    assert code == 0 and json.loads(out) == {"deleted": "skips"}
+    code, out, _ = _cli(["delete", "skips", "--yes", "--json"], capsys)
+    body = json.loads(out)
+    assert code == 0 and body["deleted"] == "skips" and body["logs"]["action"] == "deleted"
     code, _, err = _cli(["estimate", "skips"], capsys)
     assert code == 1 and "404" in err
 
@@ -384,3 +413,145 @@ def test_render_numbers_and_units() -> None:
         "modal": {"frequency_hz": [19.83], "damping_ratio": [0.0123]}}, units)
     assert "1235" in text and "[1232, 1237]" in text and "N/m" in text
     assert "19.83 Hz (ζ 1.23 %)" in text and "epoch 7" in text
+
+
+# ------------------------------------------------------------------ issue 17, finding 7
+UNIX_FLOAT = r"\b1[6-9]\d{8}\.\d+"       # a raw UNIX time such as 1795596608.876913
+LOCAL_TIME = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d"
+
+
+def test_cli_prints_tables_with_units_and_local_times(
+        server: str, tmp_path: Path, capsys: pytest.CaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 17, finding 7: register, upload, recordings, wait and drift reset printed raw
+    JSON (drift reset ~4,500 lines, UNIX float times).  Now: tables and short summaries."""
+    import re
+
+    monkeypatch.setenv("SIVA_URL", server)
+    monkeypatch.setenv("SIVA_API_TOKEN", TOKEN)
+    code, out, _ = _cli(["register", "tab", str(SPEC)], capsys)
+    assert code == 0 and out.startswith("tab: registered") and "{" not in out
+    assert "k [N/m]" in out and "4 free parameter(s)" in out
+    code, out, _ = _cli(["register", "tab", str(SPEC)], capsys)
+    assert "already registered" in out
+    files = []
+    for i, (src, off) in enumerate((("train_v5.csv", 0), ("val_v3.csv", 0), ("train_v5.csv", 4))):
+        f = tmp_path / f"r{i}.csv"
+        f.write_bytes(small(src, offset=off))
+        files.append(str(f))
+    code, out, _ = _cli(["upload", "tab", *files[:2]], capsys)
+    lines = out.splitlines()
+    assert code == 0 and "fs [Hz]" in lines[0] and "duration [s]" in lines[0]
+    assert "received (" in lines[0] and len(lines) == 4, out  # header, rule, one row per file
+    assert re.search(LOCAL_TIME, out) and not re.search(UNIX_FLOAT, out), out
+    assert "r0.csv" in out and "1000" in out  # the file, its rate (10 kHz / 10)
+    code, out, _ = _cli(["upload", "tab", files[0]], capsys)
+    assert "already stored" in out  # a duplicate says so
+    code, out, _ = _cli(["upload", "tab", files[2], "--role", "train"], capsys)
+    code, out, _ = _cli(["recordings", "tab"], capsys)
+    assert code == 0 and out.startswith("tab: 3 recording(s), 2 train + 1 validation")
+    assert "in training" in out and re.search(LOCAL_TIME, out) and not re.search(UNIX_FLOAT, out)
+    with SivaClient(server, token=TOKEN) as c:
+        deadline = time.monotonic() + 120
+        while c.estimate("tab")["epoch"] < 4 or len(c.drift("tab")["history"]) < 2:
+            assert time.monotonic() < deadline
+            time.sleep(0.2)
+        # wait prints what estimate prints (here without waiting for the refiner's best)
+        monkeypatch.setattr(SivaClient, "wait", lambda self, name, *a, **k: self.estimate(name))
+    code, out, _ = _cli(["wait", "tab", "--for", "converged"], capsys)
+    assert code == 0 and "parameter" in out and "k" in out and "N/m" in out
+    assert not out.lstrip().startswith("{") and not re.search(UNIX_FLOAT, out)
+    code, out, _ = _cli(["drift", "tab"], capsys)
+    assert code == 0 and re.search(LOCAL_TIME, out) and not re.search(UNIX_FLOAT, out)
+    code, out, _ = _cli(["drift", "reset", "tab"], capsys)
+    assert code == 0 and len(out.splitlines()) <= 3, out
+    assert "forgotten" in out and "history" in out and "{" not in out
+    code, out, _ = _cli(["--json", "drift", "reset", "tab"], capsys)
+    assert json.loads(out)["system"] == "tab"  # --json: the server's answer, unchanged
+
+
+def test_delete_removes_or_archives_the_event_logs(
+        served, tmp_path: Path, capsys: pytest.CaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 17, finding 7: `delete --yes` left the system's MCAP logs behind."""
+    url, data = served
+    monkeypatch.setenv("SIVA_URL", url)
+    monkeypatch.setenv("SIVA_API_TOKEN", TOKEN)
+    f = tmp_path / "t.csv"
+    f.write_bytes(small("train_v5.csv"))
+    for name in ("gone", "kept"):
+        assert _cli(["register", name, str(SPEC)], capsys)[0] == 0
+        assert _cli(["upload", name, str(f)], capsys)[0] == 0
+        assert list((data / "logs" / name).glob("*.mcap")), "the service logs every system"
+    code, out, _ = _cli(["delete", "gone", "--yes"], capsys)
+    assert code == 0 and "MCAP event logs were deleted" in out and "1 recording" in out, out
+    assert not (data / "logs" / "gone").exists()
+    code, out, _ = _cli(["delete", "kept", "--yes", "--archive-logs"], capsys)
+    assert code == 0 and "archived to archive/logs/kept-" in out, out
+    assert not (data / "logs" / "kept").exists()
+    archived = list((data / "archive" / "logs").glob("kept-*/*.mcap"))
+    assert archived, list((data / "archive").rglob("*"))
+    from service.mcap_log import read_events
+    assert any(e.topic == "/siva/recording" for e in read_events(archived[0]))  # still readable
+    # the name is free again, and its new log starts afresh
+    assert _cli(["register", "gone", str(SPEC)], capsys)[0] == 0
+    with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}) as h:
+        r = h.delete("/v1/systems/gone", params={"logs": "shred"})
+        assert r.status_code == 422 and "archive" in r.json()["detail"]
+
+
+def test_exports_csv_over_http_and_cli(served, tmp_path: Path, capsys: pytest.CaptureFixture,
+                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Estimates, per-record fits and the drift history as CSV with units in the header."""
+    import csv
+    import io
+
+    url, _ = served
+    with SivaClient(url, token=TOKEN) as c:
+        c.register("exp", SPEC)
+        c.upload("exp", small("train_v5.csv"), role="train")
+        c.upload("exp", small("val_v3.csv"), role="validation")
+        deadline = time.monotonic() + 120
+        while len(c.drift("exp")["history"]) < 2 or not c.estimate("exp")["parameters"]:
+            assert time.monotonic() < deadline
+            time.sleep(0.2)
+    with httpx.Client(base_url=url) as h:
+        r = h.get("/v1/systems/exp/export/estimates.csv")
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
+        assert 'filename="exp-estimates.csv"' in r.headers["content-disposition"]
+        rows = list(csv.DictReader(io.StringIO(r.text)))
+        by = {row["quantity"]: row for row in rows}
+        assert set(by) >= {"b", "b_nl", "k", "k_nl"} and by["k"]["unit"] == "N/m"
+        assert by["b_nl"]["unit"].isascii() and float(by["k"]["value"]) > 0
+        r = h.get("/v1/systems/exp/export/drift.csv")
+        head, *body = list(csv.reader(io.StringIO(r.text)))
+        assert head[:2] == ["time_utc", "epoch"] and "k [N/m]" in head and "f1 [Hz]" in head
+        assert len(body) >= 2 and body[0][0][:2] == "20"  # a date, not a UNIX float
+        r = h.get("/v1/systems/exp/export/records.csv")
+        head = next(csv.reader(io.StringIO(r.text)))
+        assert r.status_code == 200 and head[:3] == ["record_index", "record_id", "received_utc"]
+        assert h.get("/v1/systems/exp/export/alarms.csv").status_code == 200
+        r = h.get("/v1/systems/exp/export/nope.csv")
+        assert r.status_code == 404 and "estimates.csv" in r.json()["detail"]
+        assert h.get("/v1/systems/missing/export/drift.csv").status_code == 404
+    monkeypatch.setenv("SIVA_URL", url)
+    out_file = tmp_path / "drift.csv"
+    code, _, err = _cli(["export", "exp", "--what", "drift", "--out", str(out_file)], capsys)
+    assert code == 0 and "drift.csv" in err and out_file.read_text().startswith("time_utc,epoch")
+    code, out, _ = _cli(["export", "exp", "--what", "estimates"], capsys)
+    assert code == 0 and out.startswith("quantity,unit,value,std,ci95_low,ci95_high")
+
+
+def test_estimate_summary_puts_a_rejected_model_first() -> None:
+    from clients import render
+
+    est = {"parameters": {"k": {"mean": 300.0, "std": 1.0, "ci95": [298.0, 302.0]}},
+           "epoch": 9, "n_recordings": {"train": 1, "validation": 1}, "time": 1.8e9,
+           "validation": {"accepted": False, "statistic": 6.8, "p_value": 1e-6}}
+    lines = render.render_estimate("s", est, {"k": "N/m"}).splitlines()
+    assert lines[0].startswith("MODEL REJECTED") and "T = 6.8" in lines[0]
+    assert "siva diagnose" in lines[0] and "as of 20" in lines[1]
+    est["validation"]["accepted"] = True
+    assert render.render_estimate("s", est, {}).splitlines()[0].startswith("validation: model accepted")
+    del est["validation"]
+    assert render.render_estimate("s", est, {}).startswith("s: ")  # no verdict, no banner

@@ -41,6 +41,7 @@ def _register_and_upload(c, spec_of, duffing) -> None:
 def _converged_with(n: int):
     """Converged, and the Approach II ensemble holds at least ``n`` epochs."""
     return lambda e: (e["converged"] and e["ensemble_source"] == "approach_II"
+                      and e.get("ensemble_state") == "final"
                       and all((s.get("n") or 0) >= n for s in e["ensemble"].values()))
 
 

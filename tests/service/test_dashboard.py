@@ -26,7 +26,7 @@ needs_chromium = pytest.mark.skipif(chromium_missing() is not None, reason=str(c
 @pytest.fixture(scope="module")
 def trained(make_server, linear, oscillator, poll):
     """A server with the linear oscillator: 2 train + 1 validation record, trained until
-    the trainer publishes parameters."""
+    the headline is no longer provisional."""
     srv = make_server()
     with srv.client() as c:
         assert c.put("/v1/systems/osc", json=linear).status_code == 201
@@ -37,7 +37,9 @@ def trained(make_server, linear, oscillator, poll):
             assert r.status_code == 202, r.text
         # parameters published, and enough snapshots for the traces (the page needs two)
         poll(c, "/v1/systems/osc/drift", lambda b: len(b.get("history", [])) >= 3, timeout=120)
-        poll(c, "/v1/systems/osc/estimate", lambda b: bool(b.get("parameters")), timeout=120)
+        # ... and an estimate that is not provisional (best: it has a 95 % interval)
+        poll(c, "/v1/systems/osc/estimate",
+             lambda b: bool(b.get("parameters")) and b.get("provisional") is False, timeout=300)
     return srv
 
 
@@ -157,4 +159,88 @@ def test_docs_render_offline(trained, browser):
     ops = browser.execute_script("return document.querySelectorAll('.opblock').length")
     assert ops >= 10
     errors = console_errors(browser)
+    assert not errors, errors
+
+
+# --------------------------------------------------------------------------- issue 17, finding 8
+#: installed before the page's scripts: keeps the text of the first estimate table drawn,
+#: and adds a rejecting validation verdict to every estimate (what the trainer will publish)
+_FIRST_RENDER_JS = """
+window.__firstTable = null;
+new MutationObserver(() => {
+  const t = document.querySelector('#estimate-table table');
+  if (t && window.__firstTable === null) window.__firstTable = t.innerText;
+}).observe(document, {subtree: true, childList: true});
+const realFetch = window.fetch.bind(window);
+window.fetch = async (...args) => {
+  const r = await realFetch(...args);
+  if (!String(args[0]).endsWith('/estimate') || !r.ok) return r;
+  const body = await r.json();
+  body.validation = {accepted: false, statistic: 6.8, p_value: 1e-6, alpha: 0.05};
+  return new Response(JSON.stringify(body), {status: 200, headers: {'content-type': 'application/json'}});
+};
+"""
+
+
+@pytest.fixture
+def page_with_verdict(trained, browser):
+    """The dashboard of ``osc``, loaded with _FIRST_RENDER_JS installed."""
+    added = browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument",
+                                    {"source": _FIRST_RENDER_JS})
+    try:
+        browser.get(trained.base_url + "/#osc")
+        yield browser
+    finally:
+        browser.execute_cdp_cmd("Page.removeScriptToEvaluateOnNewDocument",
+                                {"identifier": added["identifier"]})
+
+
+@needs_chromium
+def test_first_render_has_units_and_a_rejected_model_is_on_top(page_with_verdict):
+    """Issue 17, finding 8: the first render had no units (they came with the latest-record
+    view, after the table).  A model the validation test rejects is shown above it all."""
+    b = page_with_verdict
+    first = _wait(b, "return window.__firstTable", lambda v: bool(v), 60)
+    assert "N/m" in first and "N/(m/s)" in first, first
+    banner = _wait(b, "const e = document.getElementById('verdict');"
+                      "return e && !e.hidden ? e.innerText : null", lambda v: bool(v), 30)
+    assert "rejected" in banner.lower() and "siva diagnose" in banner and "6.8" in banner
+    top = b.execute_script("return document.getElementById('verdict').getBoundingClientRect().top"
+                           " < document.getElementById('estimate-table').getBoundingClientRect().top")
+    assert top
+
+
+@needs_chromium
+def test_x_axes_are_time_not_epochs(page_with_verdict):
+    b = page_with_verdict
+    _wait(b, "return document.querySelectorAll('#param-plots .uplot').length", lambda n: n >= 2, 60)
+    _wait(b, "return document.querySelectorAll('#freq-plot .uplot').length", lambda n: n >= 1, 60)
+    for plot in ("param:k", "modal:frequency_hz"):
+        xs = b.execute_script(f"const p = window.sivaDashboard.plots['{plot}'].u;"
+                              "return [p.scales.x.time, p.data[0][0], p.axes[0].label]")
+        assert xs[0] is True and xs[1] > 1.5e9 and "time" in xs[2], (plot, xs)  # UNIX s
+
+
+@needs_chromium
+def test_flat_series_is_drawn_without_range_error(page_with_verdict):
+    """A series flat within float32 noise sent uPlot 1.6.32 into its endless tick loop
+    (RangeError: Invalid array length after ~15 s, leeoniya/uPlot#1084) and left the panel
+    blank: every linear scale now gets a range uPlot can draw."""
+    b = page_with_verdict
+    _wait(b, "return document.querySelectorAll('#param-plots .uplot').length", lambda n: n >= 2, 60)
+    console_errors(b)  # drop what came before
+    b.execute_script("""
+        const box = document.getElementById('param-plots');
+        for (const [id, x, y] of [['t:flat', [0, 1, 2, 3], [0.9999997615814209, 1.000000238418579, 0.9999997615814209, 1.000000238418579]],
+                                  ['t:one', [5], [19273.27]]]) {
+          const h = document.createElement('div'); box.append(h);
+          upsertPlot(id, h, {width: 300, height: 150, scales: {x: {time: false}},
+             axes: [{}, {}], series: [{label: 'x'}, {label: 'y', stroke: '#000'}]}, [x, y]);
+        }""")
+    time.sleep(2.0)  # uPlot draws in a microtask
+    ranges = b.execute_script(
+        "return ['t:flat', 't:one'].map(id => {const s = window.sivaDashboard.plots[id].u.scales.y;"
+        " return [s.min, s.max];})")
+    assert all(lo < hi for lo, hi in ranges), ranges
+    errors = console_errors(b)
     assert not errors, errors

@@ -70,7 +70,7 @@ def test_shift_alarm_states_change_point_and_reset():
     assert alarm["change_rel"] == pytest.approx(-0.15, abs=0.01)
     lo, hi = alarm["change_rel_ci95"]
     assert lo <= -0.15 <= hi
-    assert "q0 decreased by 15" in alarm["message"]
+    assert "q0: decrease of 15" in alarm["message"]  # cleared: what was seen, then why it cleared
     # checkpoint round trip, then reset forgets baseline and alarms
     clone = ChangeDetector(QS)
     clone.load_state_dict(det.state_dict())
@@ -90,3 +90,47 @@ def test_floor_keeps_tiny_changes_quiet():
     det = ChangeDetector(QS)
     alarmed = {a["parameter"] for a in _feed(det, x, se)}
     assert alarmed == {"q3"}
+
+
+def test_small_persistent_shift_stays_confirmed_and_messages_agree_with_states():
+    """Issue 17, finding 8: f1 stayed 1 % low, yet its alarm went raised -> confirmed ->
+    cleared within a few records (each |z| < 2), cleared rows still ended "; confirmed", and a
+    message read "decreased by 0.0 % (95 % CI 0.6-0.6 %)"."""
+    rng = np.random.default_rng(5)
+    n = 80
+    se = np.full((n, len(QS)), 0.001)
+    x = 1 + se * rng.standard_normal(se.shape)
+    x[30:, 0] *= 0.992  # q0 0.8 % low from record 30 on, for good: z about -1.6 per record
+    det = ChangeDetector(QS)
+    changes = _feed(det, x, se)
+    q0 = [a for a in changes if a["parameter"] == "q0"]
+    assert [a["state"] for a in q0] == ["raised", "confirmed"], [a["message"] for a in q0]
+    alarm = det.alarms[0]
+    assert alarm["active"] and alarm["state"] == "confirmed"
+    msg = alarm["message"]
+    assert msg.startswith("q0 decreased by 0.") and msg.count("decreased") == 1, msg
+    assert "confirmed at record" in msg and "raised" not in msg.split(";")[0]
+    lo, hi = alarm["change_rel_ci95"]
+    assert lo < alarm["change_rel"] < hi < 0  # the interval is on the side of the change
+    assert alarm["change_rel"] == pytest.approx(-0.008, abs=0.002)
+
+
+def test_cleared_alarm_message_says_cleared_once():
+    rng = np.random.default_rng(3)
+    se = np.full((40, len(QS)), 0.001)
+    x = 1 + se * rng.standard_normal(se.shape)
+    x[20:30, 0] *= 0.85
+    det = ChangeDetector(QS)
+    _feed(det, x, se)
+    msg = det.alarms[0]["message"]
+    assert det.alarms[0]["state"] == "cleared"
+    assert msg.startswith("q0: decrease of 15") and "cleared at record" in msg, msg
+    assert not msg.rstrip().endswith("confirmed") and msg.count("cleared at") == 1
+
+
+def test_message_interval_across_zero_is_signed():
+    from service.detector import alarm_message
+    msg = alarm_message({"parameter": "f1_hz", "direction": "decrease", "state": "raised",
+                         "change_rel": -0.0004, "change_rel_ci95": [-0.006, 0.005],
+                         "raised_index": 9, "change_since_index": 7})
+    assert "(95 % CI -0.6 to +0.5 %)" in msg and "0.6-0.6" not in msg, msg

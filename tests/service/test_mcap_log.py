@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
+from service.fingerprint import platform_fingerprint
 from service.mcap_log import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC,
                               EventLog, RecordingEvent, SnapshotEvent, is_finished, read_events,
                               recover)
@@ -68,6 +69,10 @@ def test_standard_reader_sees_schemas_channels_and_summary(tmp_path: Path) -> No
                                     TOPIC_SNAPSHOT, TOPIC_SNAPSHOT, TOPIC_SNAPSHOT]
     assert msgs[0][1]["spec"] == SPEC and msgs[0][1]["settings"] == {"seed": 7, "preset": "fast"}
     assert meta["siva"]["system"] == "duffing" and meta["siva"]["settings.seed"] == "7"
+    # the platform a bit-identical replay needs (service/fingerprint.py)
+    assert meta["siva.platform"] == platform_fingerprint()
+    assert {"python", "torch", "numpy", "scipy", "numba", "torch_cpu_capability",
+            "torch_blas", "numpy_blas", "cpu_simd"} <= set(meta["siva.platform"])
     # the non-seeking (streaming) reader of the mcap library reads the same
     with open(path, "rb") as fh:
         n = sum(1 for _ in NonSeekingReader(fh).iter_messages(log_time_order=False))
@@ -182,9 +187,13 @@ def test_sigkill_mid_run_then_next_start_recovers(tmp_path: Path) -> None:
     assert [e.topic for e in read_events(path)] == [TOPIC_SPEC, TOPIC_RECORDING, TOPIC_SNAPSHOT]
     ev = EventLog(data)  # a new service process: finishes what the dead one left
     assert ev.recovered == [path]
-    assert is_finished(path) and path.with_name(path.name + ".partial").exists()
+    # the service keeps no .partial copy; the recovery is noted in the finished file
+    assert is_finished(path) and not path.with_name(path.name + ".partial").exists()
     with open(path, "rb") as fh:
-        assert make_reader(fh).get_summary().statistics.message_count == 3
+        reader = make_reader(fh)
+        assert reader.get_summary().statistics.message_count == 3
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert int(meta["siva.recovery"]["bytes_kept"]) <= int(meta["siva.recovery"]["bytes_total"])
     ev.close()
 
 

@@ -64,7 +64,7 @@ def test_headline_drift_and_idle(srv, poll):
 
         buf = io.StringIO()
         assert run(build_parser().parse_args(["--url", srv.base_url, "wait", "osc", "--for",
-                                              "best", "--max-wait", "150"]), out=buf) == 0
+                                              "best", "--max-wait", "150", "--json"]), out=buf) == 0
         waited = json.loads(buf.getvalue())
         assert waited["estimate_source"] == "best" and waited["best"] is not None
         # headline: best, with its source, records and interval; ensemble kept apart

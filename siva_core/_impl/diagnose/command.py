@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..progress import FractionProgress
-from ..recording import Recording
+from ..inputs import read_fit_records
 from ..structure import Structure
 from .model_spec import write_model
 from .outputs import _say
@@ -19,8 +19,11 @@ def diagnose_command(args: argparse.Namespace) -> int:
     """`siva diagnose MODEL --train CSV... --val CSV... [--out FILE] [--html FILE]
     [--write-model FILE]`."""
     structure = Structure.from_file(args.model)
-    train = [Recording.read(p, structure.dofs) for p in args.train]
-    val = [Recording.read(p, structure.dofs) for p in args.val]
+    checked, _ = read_fit_records(structure, args.train, args.val,
+                                  maps=getattr(args, "map", None),
+                                  units=getattr(args, "unit", None),
+                                  resample=getattr(args, "resample", False))
+    train, val = checked.train, checked.val
     quiet = getattr(args, "quiet", False)
     progress = None if quiet else _stderr
     # the stage lines say what is done; the fraction lines when it will be over

@@ -15,6 +15,7 @@ from .model_spec import element_block
 from .results import Diagnosis
 from .units import with_unit
 from .where import _explain
+from .signatures import damping_change
 
 #: the residual spectra reach this multiple of the highest linear mode (its harmonics)
 SPECTRUM_HARMONICS = 3.5
@@ -162,6 +163,18 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
                       for r in rows) + "</table>")
 
 
+def measured_here(where: dict[str, Any]) -> str:
+    """What these records show, from the numbers of the tables below (the amplitude trend of
+    the per-record gaps, the decay windows), so the page never contradicts its tables."""
+    parts = [f"the gap {where.get('amplitude_trend', 'is not measured against amplitude')}"]
+    win = {k: v for k, v in (where.get("decay") or {}).items() if v is not None}
+    if win:
+        w = max(win, key=lambda k: win[k])
+        parts.append(f"relative to the response it is worst {w} in the decay "
+                     + "(" + ", ".join(f"{k} {v:.3g}" for k, v in win.items()) + ")")
+    return "Measured here: " + "; ".join(parts) + "."
+
+
 def html_report(diag: Diagnosis) -> str:
     """A self-contained HTML page (figures embedded as PNG)."""
     esc = html.escape
@@ -181,7 +194,8 @@ def html_report(diag: Diagnosis) -> str:
                 f"&mdash; closes {100 * c.closure:.1f} % of the validation gap"
                 f"{' left by the effects before it' if n else ''}.<br>"
                 f"{esc(_coeffs(c.effect.kind, c.coefficients, v['intervals']))}<br>"
-                f"<span class='small'>{esc(c.effect.describe(c.coefficients))}</span>"
+                f"<span class='small'>How this effect usually shows: "
+                f"{esc(c.effect.describe(c.coefficients))} {esc(measured_here(where))}</span>"
                 f"<pre>{esc(element_block(c))}</pre></div>")
         verdict = "".join(boxes)
         hint = ("<p class='small'>Add the block(s) above to the model (or write the whole "
@@ -212,6 +226,7 @@ def html_report(diag: Diagnosis) -> str:
             if cur:
                 sig_rows.append([f"mode {e['mode']} ({e['linear_frequency_hz']:.3g} Hz)", src,
                                  _f(cur.get("damping_exponent"), "+.2f"),
+                                 _f(damping_change(cur), ".2f"),
                                  _f(100 * cur["frequency_shift"] if cur.get("frequency_shift")
                                     is not None else None, "+.2f"),
                                  _f(cur.get("even_harmonics"), ".3g")])
@@ -237,7 +252,8 @@ error: 0 = perfect, 1 = as bad as predicting zero); estimated noise floor
 +1 velocity-squared, +2 cubic damper, −1 dry friction); frequency change over the amplitude
 range (backbone: + hardening, − softening); 2f/f: even-harmonic amplitude ratio
 (asymmetric laws).</p>
-{_table(['mode', 'source', 'damping exponent', 'frequency change [%]', '2f/f'], sig_rows)}
+{_table(['mode', 'source', 'damping exponent', 'damping x (largest / smallest amplitude)',
+         'frequency change [%]', '2f/f'], sig_rows)}
 <h2>Ranking (fitted candidates)</h2>
 {_table(['candidate', 'category', 'gap after', 'closure', 'identified (95 %)', 'fit [s]'],
         rank_rows)}

@@ -154,6 +154,39 @@ def amplitude_signatures(structure: Structure, theta: np.ndarray, val: Sequence[
     return out
 
 
+def damping_change(curve: dict[str, Any]) -> float | None:
+    """Damping ratio at the largest amplitude over that at the smallest, from the same
+    binned curve the signature figure and table show (None with fewer than 2 bins)."""
+    a = np.asarray(curve.get("amplitude") or [], dtype=float)
+    z = np.asarray(curve.get("damping_ratio") or [], dtype=float)
+    ok = np.isfinite(a) & np.isfinite(z) & (z > 0)
+    if ok.sum() < 2:
+        return None
+    a, z = a[ok], z[ok]
+    return float(z[np.argmax(a)] / z[np.argmin(a)])
+
+
+def damping_words(curve: dict[str, Any], p: float) -> str:
+    """What the damping does over the amplitude range, in words that agree with the
+    curve's own end points: "about constant" only when it changes by less than 25 %,
+    whatever the fitted exponent (a doubling over a decade is exponent 0.3)."""
+    change = damping_change(curve)
+    if change is not None and 0.8 <= change <= 1.25:
+        return f"damping is about constant (viscous-like; x{change:.2f} over the range), " \
+               f"exponent {p:+.2f}"
+    if change is not None:
+        verb = "grows" if change > 1 else "falls"
+        like = ("dry-friction-like" if p < -0.5 else "velocity-squared-like" if 0.6 <= p < 1.4
+                else "cubic-damper-like" if p >= 1.4 else "amplitude-dependent")
+        return (f"damping {verb} x{change:.2f} from the smallest to the largest amplitude "
+                f"({like}), exponent {p:+.2f}")
+    law = ("falls with amplitude (dry-friction-like, ~1/A)" if p < -0.5 else
+           "is about constant (viscous-like)" if p < 0.4 else
+           "grows ~ A (velocity-squared-like)" if p < 1.4 else
+           "grows ~ A^2 (cubic-damper-like)")
+    return f"damping {law}, exponent {p:+.2f}"
+
+
 def _reading(modes: Sequence[dict[str, Any]]) -> str:
     """One sentence per mode on what the measured signatures say against the nominal."""
     parts = []
@@ -164,11 +197,7 @@ def _reading(modes: Sequence[dict[str, Any]]) -> str:
         words = []
         p = meas.get("damping_exponent")
         if p is not None:
-            law = ("falls with amplitude (dry-friction-like, ~1/A)" if p < -0.5 else
-                   "is about constant (viscous-like)" if p < 0.4 else
-                   "grows ~ A (velocity-squared-like)" if p < 1.4 else
-                   "grows ~ A^2 (cubic-damper-like)")
-            words.append(f"damping {law}, exponent {p:+.2f}")
+            words.append(damping_words(meas, p))
         fs_m, fs_n = meas.get("frequency_shift"), nom.get("frequency_shift")
         if fs_m is not None and fs_n is not None:
             words.append(f"frequency changes {100 * fs_m:+.2f} % over the amplitude range "

@@ -42,6 +42,9 @@ class ElementKind:
     linear: frozenset[str] = field(default_factory=frozenset)
     doc: str = ""
     units: dict[str, str] = field(default_factory=dict)
+    #: coefficients that are >= 0 for a passive element (a damper's c: negative damping
+    #: creates energy); a spec's ``lower`` below 0 lifts the bound
+    nonnegative: frozenset[str] = field(default_factory=frozenset)
 
     def unit(self, coefficient: str) -> str:
         """SI unit of a coefficient ("" when the kind does not say)."""

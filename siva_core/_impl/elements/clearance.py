@@ -12,5 +12,5 @@ def _force(d, dv, k, gap):
 CLEARANCE = register_element(ElementKind(
     name="clearance", coefficients=("k", "gap"), force=_force,
     expr="k * ((d - gap) if d > gap else ((d + gap) if d < -gap else 0.0))",
-    linear=frozenset({"k"}), doc="f = k*(d-gap) for d>gap, k*(d+gap) for d<-gap, else 0",
+    linear=frozenset({"k"}), nonnegative=frozenset({"k", "gap"}), doc="f = k*(d-gap) for d>gap, k*(d+gap) for d<-gap, else 0",
     units={"k": "N/m", "gap": "m"}))

@@ -14,5 +14,5 @@ def _force(d, dv, fc):
 
 COULOMB = register_element(ElementKind(
     name="coulomb", coefficients=("fc",), force=_force,
-    expr=f"fc * tanh(dv / {V_SMOOTH!r})", linear=frozenset({"fc"}),
+    expr=f"fc * tanh(dv / {V_SMOOTH!r})", linear=frozenset({"fc"}), nonnegative=frozenset({"fc"}),
     doc=f"f = fc*tanh(dv/{V_SMOOTH})", units={"fc": "N"}))

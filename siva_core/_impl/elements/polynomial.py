@@ -14,9 +14,9 @@ QUADRATIC_SPRING = register_element(ElementKind(
 CUBIC_DAMPER = register_element(ElementKind(
     name="cubic_damper", coefficients=("c3",), force=lambda d, dv, c3: c3 * d**2 * dv,
     units={"c3": "N·s/m^3"},
-    expr="c3 * d * d * dv", linear=frozenset({"c3"}), doc="f = c3*d^2*dv"))
+    expr="c3 * d * d * dv", linear=frozenset({"c3"}), nonnegative=frozenset({"c3"}), doc="f = c3*d^2*dv"))
 
 QUADRATIC_DAMPER = register_element(ElementKind(
     name="quadratic_damper", coefficients=("c2",), force=lambda d, dv, c2: c2 * dv * abs(dv),
     units={"c2": "N/(m/s)^2"},
-    expr="c2 * dv * abs(dv)", linear=frozenset({"c2"}), doc="f = c2*dv*|dv|"))
+    expr="c2 * dv * abs(dv)", linear=frozenset({"c2"}), nonnegative=frozenset({"c2"}), doc="f = c2*dv*|dv|"))

@@ -11,8 +11,9 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 from ._base import (DEFAULT_LIMITS, QUANTITIES, REGISTRY, SI_UNIT, UNITS, ColumnSelector, Columns,
-                    Format, ReadLimits, RecordingError, RecordingTooLarge, check_unit,
-                    register_format, split_unit)
+                    Format, ReadLimits, RecordingError, RecordingTooLarge, TIME_ALIASES,
+                    UNIT_FACTORS, check_unit, exact_step, register_format, split_unit,
+                    unit_factor)
 from . import csv, json, npz, mcap, lvm, uff58, tdms, mat  # noqa: F401,E402  (registers)
 from .mcap import MCAP_MAGIC
 
@@ -73,7 +74,21 @@ def read_columns(raw: bytes, fmt: str, name: str, dofs: Sequence[str] | None = N
                              f"({', '.join(REGISTRY)})")
     select = ColumnSelector(dofs, channel_map)
     cols = REGISTRY[fmt].read(bytes(raw), name, select, limits)
+    unknown = [k for k in select.unmatched()
+               if not (split_unit(select.channel_map[k])[0] == "time" and "time" in
+                       {split_unit(c)[0] for c in cols.data})]
+    if unknown:
+        raise RecordingError(f"{name}: no channel named {unknown[0]!r} to map to "
+                             f"{select.channel_map[unknown[0]]!r}; the file's channels: "
+                             f"{_listing(select.seen)}")
+    cols.meta.setdefault("channels", list(select.seen))
     return cols, select.skipped
+
+
+def _listing(names: Sequence[str], limit: int = 40) -> str:
+    shown = ", ".join(repr(n) for n in names[:limit])
+    return shown + (f" ... ({len(names)} in all)" if len(names) > limit else "") if names \
+        else "(none)"
 
 
 def write_bytes(rec, fmt: str) -> bytes:
@@ -91,4 +106,5 @@ def write_bytes(rec, fmt: str) -> bytes:
 __all__ = ["REGISTRY", "Format", "ReadLimits", "DEFAULT_LIMITS", "ColumnSelector", "Columns",
            "RecordingError", "RecordingTooLarge", "register_format", "sniff_format",
            "format_of_suffix", "media_types", "resolve_format", "read_columns", "write_bytes",
-           "MCAP_MAGIC", "QUANTITIES", "UNITS", "SI_UNIT", "split_unit", "check_unit"]
+           "MCAP_MAGIC", "QUANTITIES", "UNITS", "SI_UNIT", "split_unit", "check_unit",
+           "UNIT_FACTORS", "TIME_ALIASES", "unit_factor", "exact_step"]

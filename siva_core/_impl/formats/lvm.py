@@ -13,14 +13,17 @@ a line of channel names and the data rows.  Channel mapping:
   channel was renamed by ``channel_map`` (then the user vouches for it).
 - separators ``Tab``/``Comma``/``Semicolon`` and decimal separator ``.`` or ``,`` as declared.
 
-Only one data segment is read; rows in messages are file lines (1-based).
+Only one data segment is read; rows in messages are file lines (1-based).  Bounded like
+CSV (``_lines``): the data rows are read in blocks, counted before the columns are allocated.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ._base import (ColumnSelector, Columns, Format, ReadLimits, RecordingError, RecordLike,
-                    SI_UNIT, decode_text, parse_number, register_format, split_unit)
+                    SI_UNIT, exact_step, parse_number, printed_half_unit, register_format,
+                    split_unit)
+from ._lines import check_text, count_lines, end_of_content, line_blocks, next_line
 
 MAGIC = "LabVIEW Measurement"
 _END = "***End_of_Header***"
@@ -28,17 +31,26 @@ _SEPARATORS = {"tab": "\t", "comma": ",", "semicolon": ";", "space": " "}
 
 
 def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) -> Columns:
-    text = decode_text(raw, name, "LabVIEW .lvm")
-    lines = text.splitlines()
-    if not lines or not lines[0].startswith(MAGIC):
+    start = check_text(raw, name, "LabVIEW .lvm")
+    if not raw.startswith(MAGIC.encode(), start):
         raise RecordingError(f"{name}: not a LabVIEW measurement file (no '{MAGIC}' line)")
-    ends = [i for i, line in enumerate(lines) if line.strip().startswith(_END)]
-    if len(ends) < 2:
+    end = end_of_content(raw, start)
+    marks, pos = [], start
+    while len(marks) < 3:
+        at = raw.find(_END.encode(), pos, end)
+        if at < 0:
+            break
+        marks.append(at)
+        pos = at + len(_END)
+    if len(marks) < 2:
         raise RecordingError(f"{name}: LabVIEW header incomplete (expected two "
-                             f"'{_END}' lines, found {len(ends)})")
-    if len(ends) > 2:
-        raise RecordingError(f"{name}: row {ends[2] + 1}: more than one data segment; "
-                             "export one segment per file")
+                             f"'{_END}' lines, found {len(marks)})")
+    if len(marks) > 2:
+        raise RecordingError(f"{name}: row {count_lines(raw, start, marks[2])}: more than one "
+                             "data segment; export one segment per file")
+    head_end = next_line(raw, next_line(raw, marks[1], end) + 1, end)  # + the names line
+    lines = raw[start:head_end].decode("utf-8").splitlines()
+    ends = [i for i, line in enumerate(lines) if line.strip().startswith(_END)]
     file_hdr = _header(lines[:ends[0]], None)
     sep = _SEPARATORS.get(file_hdr.get("Separator", ["Tab"])[0].strip().lower())
     if sep is None:
@@ -73,31 +85,32 @@ def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
         if target is None or target in keep.values():
             continue
         unit = units[chan_of[c]] if chan_of[c] < len(units) else ""
-        if unit and not select.mapped(n) and split_unit(target)[1] is None:
-            target = f"{target} [{unit}]"
-        keep[c] = target
+        keep[c] = select.labelled(n, target, unit)
     time_col = None
     first = min((c for c in keep if split_unit(keep[c])[0] != "time"), default=None)
     if x_cols and not any(split_unit(t)[0] == "time" for t in keep.values()):
         before = [c for c in x_cols if first is None or c < first]
         time_col = before[-1] if before else x_cols[0]
-    data_lines = lines[names_row + 1:]
-    while data_lines and not data_lines[-1].strip():
-        data_lines.pop()
     wanted = sorted(keep) + ([time_col] if time_col is not None else [])
-    values = {c: np.empty(len(data_lines)) for c in wanted}
+    n_rows = count_lines(raw, head_end + 1, end)
+    limits.check_values(n_rows * len(wanted), name)
+    values = {c: np.empty(n_rows) for c in wanted}
     first_row = names_row + 2  # 1-based line number of the first data row
-    for r, line in enumerate(data_lines):
-        cells = line.split(sep)
-        for c in wanted:
-            cell = cells[c].strip() if c < len(cells) else ""
-            if decimal != ".":
-                cell = cell.replace(decimal, ".")
-            try:
-                values[c][r] = parse_number(cell) if cell else np.nan
-            except ValueError:
-                raise RecordingError(f"{name}: column {names[c]!r}, row {r + first_row}: "
-                                     f"{cell[:40]!r} is not a number") from None
+    max_line = (limits.max_number_chars + 16) * (len(names) + 2) + 256
+    for row0, block in line_blocks(raw, head_end + 1, end, max_line, name, first_row):
+        for i, line in enumerate(block):
+            r = row0 - first_row + i
+            cells = line.split(sep)
+            for c in wanted:
+                cell = cells[c].strip() if c < len(cells) else ""
+                if decimal != ".":
+                    cell = cell.replace(decimal, ".")
+                try:
+                    values[c][r] = parse_number(cell) if cell else np.nan
+                except ValueError:
+                    raise RecordingError(f"{name}: column {names[c]!r}, row {r + first_row}: "
+                                         f"{cell[:40]!r} is not a number") from None
+    data_lines = range(n_rows)
     data = {keep[c]: values[c] for c in sorted(keep)}
     if time_col is not None:
         data["time"] = values[time_col]
@@ -106,7 +119,10 @@ def read_lvm(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
         if ch >= len(dx) or ch >= len(x0) or not dx[ch] > 0:
             raise RecordingError(f"{name}: no X column and no Delta_X for channel "
                                  f"{names[first]!r}")
-        data["time"] = x0[ch] + dx[ch] * np.arange(len(data_lines))
+        # Delta_X is printed with a few decimals (LabVIEW: 6): 0.000488 is 1/2048 s, not
+        # 1/2049.18 s; the step is the sampling rate's, within the printed precision
+        step = exact_step(dx[ch], printed_half_unit(seg["Delta_X"][ch]))
+        data["time"] = x0[ch] + step * np.arange(len(data_lines))
     return Columns(data, row_offset=first_row)
 
 

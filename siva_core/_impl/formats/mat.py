@@ -10,6 +10,8 @@ saying so (save with ``-v7`` instead).
 from __future__ import annotations
 
 import io
+import struct
+import zlib
 
 import numpy as np
 
@@ -32,6 +34,9 @@ def read_mat(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
     if _is_v73(raw):
         raise RecordingError(f"{name}: MATLAB v7.3 (HDF5) files are not supported here "
                              "(h5py is not installed); save with  save(file, '-v7')")
+    # scipy inflates every compressed variable whole, even to list it: measure first
+    limits.check_expansion("the variables", _v5_inflated_size(raw, limits, name), len(raw),
+                           name)
     try:
         info = scipy.io.whosmat(io.BytesIO(raw))
     except Exception as exc:  # noqa: BLE001 - scipy raises anything on a malformed file
@@ -39,7 +44,7 @@ def read_mat(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
                              f"{str(exc)[:200]})") from None
     limits.check_members("MATLAB variables", len(info), name)
     wanted: dict[str, str] = {}
-    total = 0
+    total = values = 0
     for var, shape, cls in info:
         target = select.target(var)
         if target is None:
@@ -51,8 +56,10 @@ def read_mat(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
             raise RecordingError(f"{name}: variable {var!r} has shape {shape}, expected a "
                                  "vector")
         total += int(np.prod(shape)) * _BYTES[cls]
+        values += int(np.prod(shape))
         wanted[var] = target
-    limits.check_total(f"{len(wanted)} variable(s)", total, name)
+    limits.check_expansion(f"{len(wanted)} variable(s)", total, len(raw), name)
+    limits.check_values(values, name)
     if not wanted:
         return Columns({})
     try:
@@ -68,6 +75,34 @@ def read_mat(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
                                  "numbers")
         data[target] = arr.astype(float).ravel()
     return Columns(data)
+
+
+def _v5_inflated_size(raw: bytes, limits: ReadLimits, name: str) -> int:
+    """Bytes a v5 file's data elements take once inflated, counted by streaming each
+    compressed element through zlib in 1 MiB pieces (nothing kept), stopping as soon as the
+    count passes what the file may expand to.  0 for other versions (not compressed)."""
+    if len(raw) < 128 or raw[126:128] not in (b"IM", b"MI"):
+        return 0
+    order = "<" if raw[126:128] == b"IM" else ">"
+    cap = max(limits.expansion_floor, int(limits.max_expansion * len(raw)))
+    cap = min(cap, limits.max_decompressed_bytes) + 1
+    pos, total = 128, 0
+    while pos + 8 <= len(raw):
+        kind, nbytes = struct.unpack(order + "II", raw[pos:pos + 8])
+        body = raw[pos + 8:pos + 8 + nbytes]
+        if kind == 15:  # miCOMPRESSED
+            inflate = zlib.decompressobj()
+            chunk = inflate.decompress(body, 1 << 20)
+            while chunk:
+                total += len(chunk)
+                if total > cap:
+                    return total
+                chunk = inflate.decompress(inflate.unconsumed_tail, 1 << 20)
+            pos += 8 + nbytes
+        else:
+            total += nbytes
+            pos += 8 + nbytes + (-nbytes) % 8
+    return total
 
 
 def write_mat(rec: RecordLike) -> bytes:

@@ -8,8 +8,10 @@ message is its first sample's time in nanoseconds.  Rows count from 0 over the c
 record.
 
 Bounded: every chunk's declared uncompressed size, and their total, are checked before the
-chunk is decompressed, and decompression never produces more than declared; message bodies
-go through the bounded JSON parser.
+chunk is decompressed - against the absolute limit and against ``max_expansion`` times the
+file (a 36 KB file declaring 127 MiB is a bomb) - and decompression never produces more
+than declared; message bodies go through the bounded JSON parser (numbers straight into
+float64 arrays, counted against ``max_values`` first).
 """
 from __future__ import annotations
 
@@ -20,7 +22,9 @@ from typing import IO, Any
 
 from ._base import (ColumnSelector, Columns, Format, ReadLimits, RecordingError,
                     RecordingTooLarge, RecordLike, register_format)
-from .json import columns_from_object, loads_bounded
+import numpy as np
+
+from .json import NumberArray, columns_from_object, loads_columns
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"   # the one definition in the project (the service log uses it)
 TOPIC = "/recording"
@@ -121,8 +125,8 @@ def _records(raw: bytes, name: str, limits: ReadLimits):
             yield record
             continue
         total += record.uncompressed_size
-        limits.check_total("an MCAP chunk", record.uncompressed_size, name)
-        limits.check_total("the MCAP chunks", total, name)
+        limits.check_expansion("an MCAP chunk", record.uncompressed_size, len(raw), name)
+        limits.check_expansion("the MCAP chunks", total, len(raw), name)
         plain = Chunk(compression="", data=_decompress(record, name),
                       message_start_time=record.message_start_time,
                       message_end_time=record.message_end_time,
@@ -154,7 +158,7 @@ def read_mcap(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits)
             if channel.message_encoding != "json":
                 raise RecordingError(f"{name}: topic {TOPIC} has message encoding "
                                      f"{channel.message_encoding!r}, expected 'json'")
-            body = loads_bounded(record.data, f"{name}: message {k - 1} on {TOPIC}", limits)
+            body = loads_columns(record.data, f"{name}: message {k - 1} on {TOPIC}", limits)
             if isinstance(body, dict) and isinstance(body.get("columns"), dict):
                 body = body["columns"]
             if not isinstance(body, dict):
@@ -171,20 +175,42 @@ def read_mcap(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits)
         raise RecordingError(f"{name}: no message on topic {TOPIC} (topics: {topics})")
     blocks.sort(key=lambda b: (b[0], b[1]))
     names = list(blocks[0][2])
-    columns: dict[str, list[Any]] = {c: [] for c in names}
+    parts: dict[str, list[Any]] = {c: [] for c in names}
+    kept = {c for c in names if select.target(c) is not None}
+    select.skipped.clear()  # the columns_from_object call below reports them
+    values = 0
     for _, k, body in blocks:
         if list(body) != names and set(body) != set(names):
             raise RecordingError(f"{name}: message {k} has columns {sorted(body)}, "
                                  f"the first message has {sorted(names)}")
+        n_time = _length(body.get("time"))
         for c, v in body.items():
-            if not isinstance(v, list):
+            if not isinstance(v, (list, NumberArray)):
                 raise RecordingError(f"{name}: column {c!r} in message {k} must be a list "
                                      "of numbers")
-            if len(v) != len(body.get("time", v)):
-                raise RecordingError(f"{name}: column {c!r} in message {k} has {len(v)} "
-                                     f"values, 'time' has {len(body['time'])}")
-            columns[c].extend(v)
-    return Columns(columns_from_object(columns, name, select))
+            if n_time is not None and _length(v) != n_time:
+                raise RecordingError(f"{name}: column {c!r} in message {k} has {_length(v)} "
+                                     f"values, 'time' has {n_time}")
+            if c in kept:
+                values += _length(v) or 0
+                limits.check_values(values, name)
+                parts[c].append(v)
+    columns = {}
+    for c, vs in parts.items():
+        if c not in kept:
+            columns[c] = []
+            continue
+        arrays = [columns_from_object({c: v}, f"{name}", select, limits)[select.target(c)]
+                  for v in vs]
+        columns[c] = np.concatenate(arrays) if arrays else np.empty(0)
+    select.skipped.clear()
+    return Columns(columns_from_object(columns, name, select, limits))
+
+
+def _length(v: Any) -> int | None:
+    if isinstance(v, NumberArray):
+        return v.count()
+    return len(v) if isinstance(v, list) else None
 
 
 FORMAT = register_format(Format(

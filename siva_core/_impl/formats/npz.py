@@ -35,7 +35,8 @@ def read_npz(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits) 
             target = select.target(key)
             if target is not None:
                 kept.append((target, info))
-        limits.check_total(f"{len(kept)} column(s)", sum(i.file_size for _, i in kept), name)
+        limits.check_expansion(f"{len(kept)} column(s)", sum(i.file_size for _, i in kept),
+                               len(raw), name)
         columns = {}
         for target, info in kept:
             columns[target] = _read_member(archive, info, name, limits)
@@ -74,6 +75,7 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, name: str,
                 raise RecordingError(f"{name}: column {col!r}: header declares {count} "
                                      "values, more than the member holds")
             limits.check_total(f"column {col!r}", nbytes, name)
+            limits.check_values(count, name)
             data = fh.read(nbytes)
     except RecordingError:
         raise

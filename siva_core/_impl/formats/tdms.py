@@ -38,17 +38,21 @@ def read_tdms(raw: bytes, name: str, select: ColumnSelector, limits: ReadLimits)
             if target is None:
                 continue
             unit = str(ch.properties.get("unit_string", "") or "").strip()
-            if unit and not select.mapped(key) and split_unit(target)[1] is None:
-                target = f"{target} [{unit}]"
+            target = select.labelled(key, target, unit)
             if split_unit(target)[0] in {split_unit(t)[0] for t in kept}:
                 raise RecordingError(f"{name}: channel {ch.name!r} appears in more than one "
                                      "group; name one as 'group/channel' in the channel map")
             kept[target] = (qualified, ch)
-        total = 0
+        total = values = 0
         for target, (qualified, ch) in kept.items():
             itemsize = getattr(getattr(ch, "dtype", None), "itemsize", 8) or 8
             total += len(ch) * itemsize
+            values += len(ch)
         limits.check_total(f"{len(kept)} TDMS channel(s)", total, name)
+        limits.check_values(values, name)
+        if total > len(raw):  # TDMS is not compressed: the data must be in the file
+            raise RecordingError(f"{name}: the TDMS channels declare {total} bytes of data, "
+                                 f"more than the file's {len(raw)} bytes")
         data: dict[str, np.ndarray] = {}
         first = None
         for target, (qualified, ch) in kept.items():

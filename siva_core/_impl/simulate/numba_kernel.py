@@ -103,6 +103,7 @@ def _kernel_source(structure: Any) -> str:
 
     K: list[str] = []
     ind = " " * 8
+    K += [f"{ind}fb = b * fstride"]
     K += [f"{ind}p_{k} = P[b, {k}]" for k in range(len(pnames))]
     K += [f"{ind}g_{k} = G[b, {k}]" for k in range(n)]
     K += [f"{ind}im_{k} = invm[{k}]" for k in range(n)]
@@ -111,7 +112,7 @@ def _kernel_source(structure: Any) -> str:
     K += [f"{ind}for i in range(T):"]
     i2, i3, i4 = ind + " " * 4, ind + " " * 8, ind + " " * 12
     K += [f"{i2}base = i * m2"]
-    K += [f"{i2}u_{k} = g_{k} * F[base, {k}]" for k in range(n)]
+    K += [f"{i2}u_{k} = g_{k} * F[fb, base, {k}]" for k in range(n)]
     K += [i2 + line for line in acc_block("q_", "v_", "u_", "a_")]
     for k in range(n):
         K += [f"{i2}Q[b, i, {k}] = q_{k}", f"{i2}V[b, i, {k}] = v_{k}", f"{i2}A[b, i, {k}] = a_{k}"]
@@ -127,9 +128,9 @@ def _kernel_source(structure: Any) -> str:
           f"{i3}break"]
     K += [f"{i2}for s in range(m):",
           f"{i3}j = base + 2 * s"]
-    K += [f"{i3}ua_{k} = g_{k} * F[j, {k}]" for k in range(n)]
-    K += [f"{i3}um_{k} = g_{k} * F[j + 1, {k}]" for k in range(n)]
-    K += [f"{i3}ub_{k} = g_{k} * F[j + 2, {k}]" for k in range(n)]
+    K += [f"{i3}ua_{k} = g_{k} * F[fb, j, {k}]" for k in range(n)]
+    K += [f"{i3}um_{k} = g_{k} * F[fb, j + 1, {k}]" for k in range(n)]
+    K += [f"{i3}ub_{k} = g_{k} * F[fb, j + 2, {k}]" for k in range(n)]
     K += [f"{i3}if s == 0:"]
     K += [f"{i4}k1_{k} = a_{k}" for k in range(n)]
     K += [f"{i3}else:"] + [i4 + line for line in acc_block("q_", "v_", "ua_", "k1_")]
@@ -157,14 +158,15 @@ def _kernel_source(structure: Any) -> str:
         "@nb.njit(parallel=True, cache=CACHE, nogil=True, error_model='numpy',",
         f"         fastmath={_fastmath_literal()})",
         "def kernel(P, G, F, invm, Q0, V0, dt, m, Q, V, A):",
-        "    # F: force at every RK4 stage time, (2 m (T - 1) + 1, n_dof): sample i, substep s",
-        "    # -> rows i*2m + 2s (start), +1 (midpoint), +2 (end)",
+        "    # F: force at every RK4 stage time, (1 or B, 2 m (T - 1) + 1, n_dof): sample i,",
+        "    # substep s -> rows i*2m + 2s (start), +1 (midpoint), +2 (end)",
         "    B = P.shape[0]",
         "    T = Q.shape[1]",
         "    m2 = 2 * m",
         "    h = dt / m",
         "    hh = 0.5 * h",
         "    h6 = h / 6.0",
+        "    fstride = F.shape[0] // B  # 1: one force per set; 0: one force shared by all",
         "    for b in nb.prange(B):",
         *K,
         "",
@@ -244,7 +246,8 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
               V0: np.ndarray, F: np.ndarray | None, m: int,
               force_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Q, V, A), each (B, T, n_dof), by the compiled kernel; ``F`` is the force on the
-    stage grid (``grid.stage_force``) or None."""
+    stage grid (``grid.stage_force``): (rows, n_dof) shared, (B, rows, n_dof) one per set,
+    or None."""
     kernel = compiled_kernel(structure)
     values = structure.full_values(theta)
     B, n = Q0.shape
@@ -254,7 +257,12 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
     G = structure.gains(theta)
     if force_scale is not None:
         G = G * force_scale[:, None]
-    Fa = np.zeros((2 * m * (T - 1) + 1, n)) if F is None else np.ascontiguousarray(F, dtype=float)
+    Fa = (np.zeros((1, 2 * m * (T - 1) + 1, n)) if F is None
+          else np.ascontiguousarray(F, dtype=float))
+    if Fa.ndim == 2:
+        Fa = Fa[None]
+    if Fa.shape[0] not in (1, B):
+        raise ValueError(f"force for {Fa.shape[0]} sets, simulating {B}")
     Q = np.empty((B, T, n))
     V = np.empty((B, T, n))
     A = np.empty((B, T, n))

@@ -32,7 +32,8 @@ def run_numpy(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
     def f_at(j: int) -> np.ndarray | None:
         if F is None:
             return None
-        return F[j] if fsc is None else F[j] * fsc
+        f = F[j] if F.ndim == 2 else F[:, j]  # shared, or one force per set (B, rows, n)
+        return f if fsc is None else f * fsc
 
     alive = np.ones(B, dtype=bool)
     with np.errstate(all="ignore"):

@@ -30,12 +30,13 @@ def simulate(structure: Any, theta: Any, t: Any, q0: Any, v0: Any, force: Any | 
              ) -> Simulation:
     """Simulate ``structure`` for one or many parameter sets on the uniform time axis ``t``.
 
-    theta (n_free,) or (B, n_free); q0, v0 (n_dof,) or (B, n_dof); force (T, n_dof) or None,
+    theta (n_free,) or (B, n_free); q0, v0 (n_dof,) or (B, n_dof); force (T, n_dof), or one
+    per set (B, T, n_dof) (integer ``substeps``), or None,
     applied through the structure's force gains and linearly interpolated between samples.
     ``substeps`` RK4 steps per sample; ``"auto"``/``None`` chooses them (``auto_substeps``)
     so that omega*h <= ``omega_h`` for the fastest linearised *and* amplitude-dependent
     (tangent) frequency.  ``backend`` = "auto" | "numba" | "numpy".  ``interp`` = "linear"
-    (default) | "cubic": how the force is evaluated between samples (``stage_force``).
+    (default) | "moments" | "cubic": how the force is evaluated between samples (``stage_force``).
     ``force_scale`` (B,) multiplies the force of each set (a per-set calibration factor,
     used by ``refine`` to absorb an impact's impulse error).  ``staged_force``: the force
     already on the stage grid (``stage_force``) for integer ``substeps``, to skip that step
@@ -62,8 +63,11 @@ def simulate(structure: Any, theta: Any, t: Any, q0: Any, v0: Any, force: Any | 
         F = np.asarray(force, dtype=float)
         if F.ndim == 1 and n == 1:
             F = F[:, None]
-        if F.shape != (len(t), n):
-            raise ValueError(f"force must have shape (T, n_dof) = {(len(t), n)}, got {F.shape}")
+        if F.shape != (len(t), n) and F.shape != (B, len(t), n):
+            raise ValueError(f"force must have shape (T, n_dof) = {(len(t), n)} or one per "
+                             f"parameter set (B, T, n_dof), got {F.shape}")
+        if F.ndim == 3 and (substeps is None or substeps == "auto"):
+            raise ValueError("a force per parameter set needs integer substeps")
         if not np.all(np.isfinite(F)):
             raise ValueError("force contains non-finite values")
     use = choose_backend(structure, backend)
@@ -81,7 +85,7 @@ def simulate(structure: Any, theta: Any, t: Any, q0: Any, v0: Any, force: Any | 
     staged = None
     if staged_force is not None and F is not None:
         staged = np.asarray(staged_force, dtype=float)
-        if staged.shape != (2 * m * (len(t) - 1) + 1, n):
+        if staged.shape[-2:] != (2 * m * (len(t) - 1) + 1, n) or staged.ndim != F.ndim:
             raise ValueError("staged_force does not match the force and substeps")
     if pilot_run is not None and gs is None and staged is None:
         Q, V, A = pilot_run  # the pilot already simulated every set at these substeps

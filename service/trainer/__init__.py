@@ -1,0 +1,22 @@
+"""The per-system trainer: ``siva identify``'s two-phase SIVA, run as records stream.
+
+Parts (one concern each, frozen values between them: ``types.py``):
+
+- ``worker.py``     SystemWorker: the trainer thread's loop, phases, idle, checkpoints
+- ``data.py``       DataFeed: replay buffer, parsed records, processing chain -> DataSet
+- ``refiner.py``    Refiner: the second thread (first ``best``, anchors, monitoring,
+                    validation)
+- ``anchoring.py``  the output-error linearisation at an anchor (shared with replay)
+- ``readout.py``    the ensemble read-out, provisional until final (shared with replay)
+- ``validation.py`` the held-out test (T, p-value, verdict) for headline and ensemble
+- ``snapshot.py``   the published snapshot, agreement of ensemble and headline
+- ``factory.py``    making and stopping trainers
+"""
+from __future__ import annotations
+
+from .factory import base_snapshot, default_trainer, stop_workers
+from .readout import ENSEMBLE_MIN_SAMPLES, REFINE_MIN_SAMPLES
+from .worker import SystemWorker
+
+__all__ = ["SystemWorker", "default_trainer", "base_snapshot", "stop_workers",
+           "REFINE_MIN_SAMPLES", "ENSEMBLE_MIN_SAMPLES"]
