@@ -38,11 +38,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data")
 
 #: extra damping ratio of the two sizes (dissipative laws)
-DAMPING = {"small": 0.003, "large": 0.01}
+DAMPING = {"faint": 0.001, "small": 0.003, "large": 0.01}
 #: equivalent stiffness as a share of m w1^2 (the cubic spring's small size is softening)
-STIFFNESS = {"small": 0.04, "large": 0.12}
+STIFFNESS = {"faint": 0.015, "small": 0.04, "large": 0.12}
 #: clearance contact stiffness as a share of m w1^2
-CONTACT = {"small": 0.5, "large": 1.5}
+CONTACT = {"faint": 0.2, "small": 0.5, "large": 1.5}
 DISSIPATIVE = {"damper", "quadratic_damper", "cubic_damper", "coulomb"}
 KINDS = ("coulomb", "damper", "quadratic_damper", "cubic_damper", "spring", "cubic_spring",
          "quadratic_spring", "clearance")
@@ -149,15 +149,16 @@ def coefficients(rig_name: str, kind: str, place: str, size: str) -> dict[str, f
         mag = DAMPING[size] * 2 * m * w1 * v / unit
     else:
         mag = STIFFNESS[size] * m * w1 ** 2 * d / unit
-        if kind == "cubic_spring" and size == "small":
+        if kind == "cubic_spring" and size in ("small", "faint"):
             mag = -mag
     return {eff.magnitude: float(f"{mag:.3g}")}
 
 
 @dataclass(frozen=True)
 class MatrixCase:
-    """``rig:kind:place:size``, ``rig:null``, ``rig:sensor:fault:channel`` or
-    ``rig:two:i`` (the i-th pair of ``Rig.pairs``)."""
+    """``rig:kind:place:size``, ``rig:null``, ``rig:sensor:fault:channel``,
+    ``rig:two:i`` (the i-th pair of ``Rig.pairs``) or ``rig:mixed:kind:place:size:fault:
+    channel`` (a structural effect and a sensor fault at once, issue 16)."""
 
     rig: str
     what: str
@@ -175,7 +176,16 @@ class MatrixCase:
             return list(STRUCTURES[self.rig].pairs[int(self.args[0])])
         if self.what in EFFECTS:
             return [(self.what, self.args[0], self.args[1])]
+        if self.what == "mixed":
+            return [(self.args[0], self.args[1], self.args[2])]
         return []
+
+    def _fault(self) -> tuple[str, str] | None:
+        if self.what == "sensor":
+            return self.args[0], self.args[1]
+        if self.what == "mixed":
+            return self.args[3], self.args[4]
+        return None
 
     def records(self) -> tuple[list[Recording], list[Recording]]:
         rig = STRUCTURES[self.rig]
@@ -186,8 +196,8 @@ class MatrixCase:
         theta = gen.vector(rig.truth())
         train = synthetic_impacts(gen, theta, list(rig.train_peaks), dof=rig.force_dof, seed=11)
         val = synthetic_impacts(gen, theta, list(rig.val_peaks), dof=rig.force_dof, seed=12)
-        if self.what == "sensor":
-            fault, channel = self.args
+        if self._fault() is not None:
+            fault, channel = self._fault()
             value = SENSORS[fault]
             out = []
             for r in [*train, *val]:
@@ -201,16 +211,18 @@ class MatrixCase:
         return train, val
 
     def expected(self) -> list[tuple[str, tuple[str, ...]]]:
-        if self.what == "sensor":
-            return [(self.args[0], (self.args[1],))]
-        return [(k, _between(p)) for k, p, _ in self._elements()]
+        out = [(k, _between(p)) for k, p, _ in self._elements()]
+        if self._fault() is not None:
+            out.append((self._fault()[0], (self._fault()[1],)))
+        return out
 
     def truths(self) -> list[dict[str, float]]:
-        if self.what == "sensor":
-            fs = 2048.0
-            v = SENSORS[self.args[0]]
-            return [{"delay": v / fs} if self.args[0] == "channel_delay" else {"gain": v}]
-        return [coefficients(self.rig, k, p, s) for k, p, s in self._elements()]
+        out = [coefficients(self.rig, k, p, s) for k, p, s in self._elements()]
+        if self._fault() is not None:
+            fault = self._fault()[0]
+            v = SENSORS[fault]
+            out.append({"delay": v / 2048.0} if fault == "channel_delay" else {"gain": v})
+        return out
 
 
 def parse(name: str) -> MatrixCase:
@@ -257,5 +269,34 @@ def cases(scope: str, rigs: list[str], rotate: int = 0) -> list[MatrixCase]:
     return out
 
 
+#: look-alike laws (issue 16): every one of a group at every place, sized "small"
+LOOK_ALIKE_GROUPS = (("damper", "quadratic_damper", "cubic_damper", "coulomb"),
+                     ("spring", "cubic_spring", "clearance"))
+
+
+def issue16_cases(rigs: list[str]) -> list[MatrixCase]:
+    """The rows issue 16 adds: both two-effect pairs, a structural effect with a sensor
+    fault, each look-alike law at every place it is missing (small), faint sizes of the
+    look-alike laws (first place) and the null."""
+    out: list[MatrixCase] = []
+    for name in rigs:
+        rig = STRUCTURES[name]
+        st = rig.nominal()
+        out.append(MatrixCase(name, "null", ()))
+        out += [MatrixCase(name, "two", (str(i),)) for i in range(len(rig.pairs))]
+        kind, place, size = rig.pairs[0][0]
+        out.append(MatrixCase(name, "mixed", (kind, place, size, "accelerometer_gain",
+                                              f"acc_{st.dofs[-1]}")))
+        for group in LOOK_ALIKE_GROUPS:
+            for kind in group:
+                where = [p for p in places(st) if not _has(st, kind, p)]
+                out += [MatrixCase(name, kind, (p, "small")) for p in where]
+                if where:
+                    out.append(MatrixCase(name, kind, (where[0], "faint")))
+    return out
+
+
 def case_names(scope: str, rigs: list[str], rotate: int = 0) -> list[str]:
+    if scope == "issue16":
+        return [c.name for c in issue16_cases(rigs)]
     return [c.name for c in cases(scope, rigs, rotate)]

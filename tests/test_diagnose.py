@@ -156,10 +156,13 @@ def test_verdict_when_every_check_passes():
 
 
 def test_no_verdict_at_the_noise_level_or_below_the_relevance_floor():
-    # below gap_min a candidate must close faint_closure (0.8) of the gap to be named
+    # below gap_min a candidate must close faint_closure (0.8) of the gap to be named,
+    # unless the gap is faint_noise (10) x the noise floor (judged against the noise)
     ranking = [_cand("coulomb", ("NO", "ground"), 0.7, gap_before=0.004)]
-    verdict, rule = decide(ranking, 0.004, 1e-4, DiagnoseSettings())
+    verdict, rule = decide(ranking, 0.004, 1e-3, DiagnoseSettings())
     assert verdict is None and not rule["checks"]["above_noise"]
+    verdict, rule = decide(ranking, 0.004, 1e-4, DiagnoseSettings())
+    assert verdict is ranking[0] and rule["checks"]["above_noise"]
     ranking = [_cand("coulomb", ("NO", "ground"), 0.9, gap_before=0.05)]
     verdict, rule = decide(ranking, 0.05, 0.03, DiagnoseSettings())
     assert verdict is None and "noise" in rule["reason"]
@@ -169,7 +172,21 @@ def test_no_verdict_when_closure_is_small_or_a_rival_kind_is_as_good():
     verdict, rule = decide([_cand("coulomb", ("NO", "ground"), 0.35)], 0.4, 1e-3,
                            DiagnoseSettings())
     assert verdict is None and not rule["checks"]["closure"]
+    ranking = [_cand("cubic_damper", ("LO", "NO"), 0.80), _cand("quadratic_damper", ("NO", "ground"), 0.78)]
+    verdict, rule = decide(ranking, 0.4, 1e-3, DiagnoseSettings())
+    assert verdict is None and not rule["checks"]["separation"]
+
+
+def test_a_look_alike_at_the_same_place_is_named_as_a_rival():
+    # the data cannot separate two look-alike laws at one place: the leader is named and
+    # the other listed with its closure (issue 16), not nothing
     ranking = [_cand("cubic_damper", ("LO", "NO"), 0.80), _cand("quadratic_damper", ("LO", "NO"), 0.78)]
+    verdict, rule = decide(ranking, 0.4, 1e-3, DiagnoseSettings())
+    assert verdict is ranking[0] and rule["checks"]["separation"]
+    assert [r["candidate"] for r in verdict.rivals] == ["quadratic_damper LO-NO"]
+    assert verdict.rivals[0]["closure"] == pytest.approx(0.78)
+    # not look-alikes (dissipative vs restoring) at one place: still a blocking rival
+    ranking = [_cand("cubic_damper", ("LO", "NO"), 0.80), _cand("cubic_spring", ("LO", "NO"), 0.78)]
     verdict, rule = decide(ranking, 0.4, 1e-3, DiagnoseSettings())
     assert verdict is None and not rule["checks"]["separation"]
 

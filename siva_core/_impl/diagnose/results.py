@@ -54,6 +54,11 @@ class Candidate:
     scan_raw: np.ndarray | None = None     # the best scan point itself
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 %
     amplitudes: Amplitudes | None = None   # what an element here sees (nominal, train)
+    closure_added: float = math.nan  # in a named set: the share of the nominal gap the
+    # set loses without this member (what it adds)
+    contribution: float = math.nan   # its own output change on the validation records
+    rivals: list[dict[str, Any]] = field(default_factory=list)  # look-alikes the data
+    # cannot separate from it: [{"candidate", "closure"}]
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:
@@ -94,6 +99,12 @@ class Candidate:
             "explanation": self.effect.describe(self.coefficients)}
         if self.category == "sensor":
             out["channel"] = self.loc.between[0]
+        if np.isfinite(self.closure_added):
+            out["closure_added"] = float(self.closure_added)
+        if np.isfinite(self.contribution):
+            out["contribution"] = float(self.contribution)
+        if self.rivals:
+            out["rivals"] = list(self.rivals)
         return out
 
     def to_json(self) -> dict[str, Any]:

@@ -45,6 +45,19 @@ def same_law(a: Candidate, b: Candidate) -> bool:
                 and 1.0 - float((fa - fb) @ (fa - fb)) / ss >= SAME_LAW_R2)
 
 
+#: laws that can mimic each other over a range of amplitudes (issue 16): fitted side by
+#: side at the leading place, named as rivals when the data cannot separate them
+LOOK_ALIKES = ({"damper", "quadratic_damper", "cubic_damper", "coulomb"},
+               {"spring", "cubic_spring", "clearance"},
+               # with known masses a force gain is a common gain of every response channel:
+               # on one DOF (one accelerometer) the two faults are one
+               {"accelerometer_gain", "force_gain"})
+
+
+def look_alike(a: str, b: str) -> bool:
+    return any(a in g and b in g for g in LOOK_ALIKES)
+
+
 def _consistent(top: Candidate, tolerance: float) -> bool:
     """No validation record gets worse by more than ``tolerance`` of its own gap *and* of
     the mean record gap: a record whose gap is at the noise level (a small-amplitude record
@@ -87,10 +100,26 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
         top = simplest
     rival = next((c for c in fitted if c is not top and c.effect.kind != top.effect.kind
                   and not same_law(top, c)), None)
+    # look-alike laws at the same place that fit about as well: named beside the verdict
+    # as rivals (the data cannot separate them), not a reason to name nothing
+    near = [c for c in fitted if c is not top and c.category == top.category
+            and c.effect.kind != top.effect.kind and not same_law(top, c)
+            and np.isfinite(c.gap_after) and top.gap_after > settings.separation * c.gap_after]
+    look_alikes = [c for c in near if (c.loc.between == top.loc.between
+                                       or c.category == "sensor")
+                   and look_alike(top.effect.kind, c.effect.kind)]
+    if rival is not None and rival in look_alikes:
+        rival = next((c for c in fitted if c is not top and c.effect.kind != top.effect.kind
+                      and not same_law(top, c) and c not in look_alikes), None)
+    rule["rivals"] = [{"candidate": c.label(), "closure": float(c.closure)}
+                      for c in look_alikes]
     checks = {
         # a gap below gap_min counts only when the candidate closes most of it (faint)
         "above_noise": bool((gap_before > settings.gap_min
-                             or top.closure >= settings.faint_closure) and (
+                             or top.closure >= settings.faint_closure
+                             or (noise_floor is not None and noise_floor > 0
+                                 and gap_before >= settings.faint_noise * noise_floor
+                                 and top.closure >= settings.closure_min)) and (
             noise_floor is None or gap_before > settings.noise_factor * noise_floor)),
         "closure": bool(top.closure >= settings.closure_min),
         "separation": bool(rival is None or not np.isfinite(rival.gap_after)
@@ -100,11 +129,15 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
     rule.update({"candidate": top.label(), "rival": rival.label() if rival else None,
                  "checks": checks})
     if all(checks.values()):
-        rule["reason"] = "all checks pass"
+        rule["reason"] = "all checks pass" + (
+            f"; the data cannot separate it from {', '.join(r['candidate'] for r in rule['rivals'])}"
+            if rule["rivals"] else "")
+        top.rivals = list(rule["rivals"])
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
     reasons = {"above_noise": "the nominal model already fits the validation records to "
-                              f"the noise level, or within {settings.gap_min:g} NMSE and no "
+                              f"the noise level, or within {settings.gap_min:g} NMSE, below "
+                              f"{settings.faint_noise:g} x the noise floor, and no "
                               f"candidate closes {settings.faint_closure:.0%} of that",
                "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
                           "of the validation gap",

@@ -1,0 +1,168 @@
+"""Diagnosis on random scenarios (issue 16): `scenarios.draw(seed)` for each seed, then
+`siva_core.diagnose`, scored against the scenario's truth.
+
+A case is *complete* when the named effects are exactly the expected ones (kind and place,
+or fault and channel; nothing missing, nothing more).  Rates are reported per category
+(null, single, two effects) and for the faint effects (visibility < 5 x the noise) and
+those at >= 5 x.  Each row has the wall time, the process CPU time and the 1-minute load
+average at the end of the case (the machine is shared: the wall time depends on the load).
+
+Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]``
+(``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs).
+Seeds used for development are listed in docs/diagnosis.md; a reported rate must come from
+seeds never run before the rules were frozen.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from siva_core import diagnose  # noqa: E402
+
+import scenarios  # noqa: E402
+
+
+class CaseTimeout(BaseException):  # not swallowed by the diagnosis's per-candidate guards
+    pass
+
+
+def _timeout(signum: int, frame: Any) -> None:
+    raise CaseTimeout("over the time limit")
+
+
+def parse_seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        if "-" in part:
+            a, b = part.split("-")
+            out += list(range(int(a), int(b) + 1))
+        elif part.strip():
+            out.append(int(part))
+    return out
+
+
+def _label(kind: str, between: Any) -> str:
+    return f"{kind} {'-'.join(between)}"
+
+
+def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
+    seed = sc.seed
+    t0, c0 = time.perf_counter(), time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        diag = diagnose(sc.nominal, sc.train, sc.val, "auto",
+                        progress=(lambda m: print("   ", m, flush=True)) if verbose else None)
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+    out = diag.to_json()
+    got = sorted(_label(v["kind"], v["between"]) for v in out["verdicts"])
+    exp = sorted(_label(k, b) for k, b in sc.expected)
+    if len(sc.nominal.dofs) == 1:  # one accelerometer: its gain *is* a force gain (1/g)
+        same = {_label("accelerometer_gain", [f"acc_{sc.nominal.dofs[0]}"]),
+                _label("force_gain", [f"force_{sc.force_dof}"])}
+        exp = sorted(_label("force_gain", [f"force_{sc.force_dof}"]) if e in same else e
+                     for e in exp)
+        got = sorted(_label("force_gain", [f"force_{sc.force_dof}"]) if g in same else g
+                     for g in got)
+    sizes = []
+    for (kind, where), truth in zip(sc.expected, sc.truths):
+        v = next((v for v in out["verdicts"]
+                  if (v["kind"], tuple(v["between"])) == (kind, tuple(where))), None)
+        if v is not None:
+            sizes += [v["coefficients"][k] / x for k, x in truth.items()
+                      if k != "gap" and v["coefficients"].get(k) is not None and x]
+    return {"seed": seed, "category": sc.category, "describe": scenarios.describe(sc),
+            "expected": exp, "named": got, "complete": got == exp,
+            "missing": [e for e in exp if e not in got], "extra": [g for g in got if g not in exp],
+            "visibility": sc.visibility, "size_ratio": sizes,
+            "rivals": out.get("rivals", []),
+            "gap_before": out["nominal"]["gap"], "reason": out["rule"].get("reason"),
+            "noise_floor": out["where"].get("noise_floor"),
+            "time_s": elapsed, "cpu_s": cpu, "load1": os.getloadavg()[0],
+            "dofs": sc.info["dofs"], "samples": len(sc.train[0].time),
+            "timing_s": out.get("timing_s", {})}
+
+
+def summarise(rows: list[dict[str, Any]]) -> None:
+    def rate(rs: list[dict[str, Any]]) -> str:
+        return f"{sum(r['complete'] for r in rs)} of {len(rs)}" if rs else "-"
+    cats = {c: [r for r in rows if r["category"] == c] for c in ("null", "single", "two", "three")}
+    nulls = cats["null"]
+    false = sum(bool(r["named"]) for r in nulls)
+    effect_rows = [r for r in rows if r["category"] != "null"]
+    strong = [r for r in effect_rows if r["visibility"] and min(r["visibility"]) >= 5.0
+              or not r["visibility"]]
+    faint = [r for r in effect_rows if r["visibility"] and min(r["visibility"]) < 5.0]
+    print(f"\n{len(rows)} scenarios: complete {rate(rows)}")
+    for c, rs in cats.items():
+        if rs:
+            print(f"  {c:7s} complete {rate(rs)}")
+    print(f"  false verdicts on nulls: {false} of {len(nulls)}")
+    print(f"  effects all >= 5 x noise (or sensor only): complete {rate(strong)}; "
+          f"with an effect < 5 x noise: {rate(faint)}")
+    times = sorted(r["time_s"] for r in rows)
+    cpus = sorted(r["cpu_s"] for r in rows)
+    if times:
+        med = times[len(times) // 2]
+        print(f"  wall s median {med:.0f} max {times[-1]:.0f}; CPU s median "
+              f"{cpus[len(cpus) // 2]:.0f} max {cpus[-1]:.0f}; load average "
+              f"{min(r['load1'] for r in rows):.1f}-{max(r['load1'] for r in rows):.1f}")
+    for r in rows:
+        if not r["complete"]:
+            print(f"  miss seed {r['seed']}: expected {r['expected']} named {r['named']} "
+                  f"(visibility {[round(v, 1) for v in r['visibility']]}; {r['reason']})")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="2000-2009")
+    ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--summarise", metavar="FILES")
+    ap.add_argument("--limit", type=float, default=0.0,
+                    help="seconds of wall time per case; a case over it counts as wrong")
+    args = ap.parse_args()
+    if args.summarise:
+        rows = [r for f in args.summarise.split(",") for r in json.loads(Path(f).read_text())]
+        summarise(rows)
+        return 0
+    rows: list[dict[str, Any]] = []
+    signal.signal(signal.SIGALRM, _timeout)
+    for seed in parse_seeds(args.seeds):
+        sc = None
+        try:
+            sc = scenarios.draw(seed)
+            print(scenarios.describe(sc), flush=True)
+            if args.limit:
+                signal.alarm(int(args.limit))
+            row = run(sc, args.verbose)
+            signal.alarm(0)
+        except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
+            signal.alarm(0)
+            row = {"seed": seed, "category": sc.category if sc is not None else "error",
+                   "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
+                   "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
+                   "visibility": sc.visibility if sc else [], "time_s": float(args.limit),
+                   "cpu_s": 0.0, "load1": os.getloadavg()[0], "reason": str(exc)}
+        rows.append(row)
+        print(f"  -> {'OK ' if row['complete'] else 'NO '} named {row['named']} "
+              f"({row['time_s']:.0f} s wall, {row['cpu_s']:.0f} s CPU, load {row['load1']:.1f}; "
+              f"{row.get('reason')})", flush=True)
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    summarise(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
