@@ -280,6 +280,16 @@ class _SystemLog:
             pass
 
 
+def _finish(sl: _SystemLog) -> None:
+    """Close a system's open file; a disk that refuses leaves it to crash recovery."""
+    with sl.lock:
+        try:
+            sl.close()
+        except OSError as exc:
+            log.warning("cannot finish %s: %s", sl.path, exc)
+            sl.abandon()
+
+
 class EventLog:
     """Append-only MCAP event logs for all systems of one service process.
 
@@ -344,12 +354,7 @@ class EventLog:
         with self._lock:
             sl = self._logs.pop(system, None)
         if sl is not None:
-            with sl.lock:
-                try:
-                    sl.close()
-                except OSError as exc:
-                    log.warning("cannot finish %s: %s", sl.path, exc)
-                    sl.abandon()
+            _finish(sl)
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
                       epoch: int, name: str | None = None,
@@ -408,12 +413,7 @@ class EventLog:
             sl = self._logs.pop(system, None)
             self._specs.pop(system, None)
         if sl is not None:
-            with sl.lock:
-                try:
-                    sl.close()
-                except OSError as exc:
-                    log.warning("cannot finish %s: %s", sl.path, exc)
-                    sl.abandon()
+            _finish(sl)
         folder = self.root / _safe(system)
         if not folder.is_dir():
             return {"action": "none", "files": 0}

@@ -32,11 +32,11 @@ _TOKEN_RE = re.compile(rb"\s*(?:" + _NUMBER + rb")\s*")
 _BLOCK_RE = re.compile(rb"\s*(?:" + _NUMBER + rb")\s*(?:,\s*(?:" + _NUMBER + rb")\s*)*")
 
 
-def _structure(raw: bytes, limits: ReadLimits, name: str) -> Iterator[tuple[int, int]]:
-    """(position, byte) of every bracket outside strings, in order; bounded in count."""
+def _bracket_blocks(raw: bytes) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Per 1 MiB block: (block start, bytes of the [ ] { } outside strings, their offsets in
+    the block), in order; vectorised, so a long body is scanned without a Python loop."""
     raw = raw.replace(b"\\\\", b"__").replace(b'\\"', b"__")
     in_string = False
-    count = 0
     for start in range(0, len(raw), _SCAN_BLOCK):
         block = np.frombuffer(raw, np.uint8, count=min(_SCAN_BLOCK, len(raw) - start),
                               offset=start)
@@ -48,12 +48,18 @@ def _structure(raw: bytes, limits: ReadLimits, name: str) -> Iterator[tuple[int,
         quotes = np.cumsum(ch == 34) + int(in_string)
         outside = (quotes % 2 == 0) & (ch != 34)
         in_string = bool(quotes[-1] % 2)
-        keep = idx[outside]
+        yield start, ch[outside], idx[outside]
+
+
+def _structure(raw: bytes, limits: ReadLimits, name: str) -> Iterator[tuple[int, int]]:
+    """(position, byte) of every bracket outside strings, in order; bounded in count."""
+    count = 0
+    for start, ch, keep in _bracket_blocks(raw):
         count += keep.size
         if count > MAX_BRACKETS:
             raise RecordingTooLarge(f"{name}: JSON with more than {MAX_BRACKETS} arrays and "
                                     "objects; a recording is an object of number arrays")
-        for i, c in zip((keep + start).tolist(), block[keep].tolist()):
+        for i, c in zip((keep + start).tolist(), ch.tolist()):
             yield i, c
 
 
@@ -162,26 +168,15 @@ def _loads(data: bytes, name: str, limits: ReadLimits, strict: bool = True) -> A
 
 def json_depth(raw: bytes) -> int:
     """Deepest nesting of ``[``/``{`` outside strings; vectorised, in 1 MiB blocks."""
-    raw = raw.replace(b"\\\\", b"__").replace(b'\\"', b"__")
     depth = 0
     deepest = 0
-    in_string = False
-    for start in range(0, len(raw), _SCAN_BLOCK):
-        block = np.frombuffer(raw, np.uint8, count=min(_SCAN_BLOCK, len(raw) - start),
-                              offset=start)
-        idx = np.flatnonzero((block == 34) | (block == 91) | (block == 123)
-                             | (block == 93) | (block == 125))
-        if not idx.size:
+    for _, ch, _ in _bracket_blocks(raw):
+        if not ch.size:
             continue
-        ch = block[idx]
-        quotes = np.cumsum(ch == 34) + int(in_string)
-        outside = (quotes % 2 == 0) & (ch != 34)
-        step = np.where(outside & ((ch == 91) | (ch == 123)), 1,
-                        np.where(outside & ((ch == 93) | (ch == 125)), -1, 0))
+        step = np.where((ch == 91) | (ch == 123), 1, -1)
         levels = depth + np.cumsum(step)
         deepest = max(deepest, int(levels.max()))
         depth = int(levels[-1])
-        in_string = bool(quotes[-1] % 2)
     return deepest
 
 
