@@ -114,9 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "coverage.json"))
     args = ap.parse_args(argv)
     if args.force_interp:
-        from siva_core._impl.simulate import grid  # the ablation's private knob
+        from siva_core import set_measured_force_interp
 
-        grid.MEASURED_FORCE_INTERP = args.force_interp
+        set_measured_force_interp(args.force_interp)
     results = []
     for name in args.cases.split(","):
         res = run_case(CASES[name], args.runs, args.seed,

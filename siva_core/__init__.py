@@ -68,7 +68,8 @@ _export("progress", "Eta", "EpochProgress", "FractionProgress")
 _export("mcap_recording", "read_mcap_recording", "write_mcap_recording", "mcap_bytes")
 _export("processing", "Processing", "States", "simulated_recording", "central_difference")
 _export("impulse", "detect_impulse", "Impulse")
-_export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup")
+_export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup",
+        "set_measured_force_interp")
 _export("excitation", "initial_state_and_force", "gate_force")
 _export("inputs", "parse_pairs")
 _export("preflight", "preflight", "check_recording", "check_rates", "resample_to",
@@ -129,7 +130,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                output_error, refine)
     from ._impl.report import write_report
-    from ._impl.simulate import Simulation, auto_substeps, simulate, stage_force, warmup
+    from ._impl.simulate import (Simulation, auto_substeps, set_measured_force_interp, simulate,
+                                 stage_force, warmup)
     from ._impl.siva import Identification, Siva, choose_processing, recommend_best
     from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
     from ._impl.structure import SpecError, Structure

@@ -13,6 +13,18 @@ BLOWUP = 1e100
 MEASURED_FORCE_INTERP = "moments"
 
 
+def set_measured_force_interp(interp: str) -> str:
+    """Choose how output-error fits read a measured force between samples (an ablation
+    knob for benchmarks: ``"moments"``, the default, ``"linear"`` or ``"cubic"``); returns
+    the previous choice so a caller can restore it."""
+    global MEASURED_FORCE_INTERP
+    if interp not in ("moments", "linear", "cubic"):
+        raise ValueError(f"force interpolation must be 'linear', 'moments' or 'cubic', "
+                         f"got {interp!r}")
+    previous, MEASURED_FORCE_INTERP = MEASURED_FORCE_INTERP, interp
+    return previous
+
+
 def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
     """The sampled force (T, n) at every RK4 stage time: (2 m (T-1) + 1, n), i.e. on the
     grid t_0 + k h/2 ((B, T, n) -> (B, rows, n): one force per parameter set).
