@@ -23,8 +23,6 @@ and a growing fitting horizon; and, optionally, a per-record force scale as a nu
 parameter for impact records, whose response is very sensitive to the impulse.
 """
 from __future__ import annotations
-
-import dataclasses
 import math
 import time
 import warnings
@@ -34,16 +32,15 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from .bootstrap import (Series, bootstrap_covariance, perturbation_solutions,
-                        phase_randomized, series_of)
+from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
-from .processing import Processing, States
+from .output_error import (OutputErrorProblem, _state_derived, displacement_mse,  # noqa: F401
+                           output_error)
+from .processing import Processing
 from .recording import Recording
-from .simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
-                       simulate, stage_force)
-from .simulate import grid as _grid
+from .simulate import OMEGA_H
+from .replicates import noise_replicates
 
-_QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
 #: relative standard error below which no interval is reported (simulation accuracy)
 NUMERICAL_REL_STD = 1e-6
 #: a log-scaled parameter stays within this factor of theta0 (see ``_x_bounds``)
@@ -51,290 +48,6 @@ LOG_RANGE = 20.0
 #: full-record cost below which theta0 is taken to be in the basin (no growing horizons):
 #: a mean NMSE of 0.05 means no cycle has slipped anywhere in the records
 HORIZON_SKIP_COST = 0.05
-
-
-# ---------------------------------------------------------------------------- problem
-@dataclass
-class _Record:
-    """One measured record, prepared once: processed targets, initial state, force."""
-
-    rec: Recording
-    q0: np.ndarray
-    v0: np.ndarray
-    force: np.ndarray | None
-    quantities: list[str]        # compared quantity per DOF
-    target: np.ndarray           # (T', n_dof) processed measured values of those quantities
-    rms: np.ndarray              # (n_dof,) RMS of each target column
-    substeps: int = 1
-    state_rms: np.ndarray | None = None  # (2 n_dof,) RMS of processed q then v (scales)
-    _staged: tuple[int, str, np.ndarray] | None = None
-
-    def staged(self, interp: str) -> np.ndarray | None:
-        """The force on the RK4 stage grid, computed once per (substeps, interp)."""
-        if self.force is None:
-            return None
-        if self._staged is None or self._staged[:2] != (self.substeps, interp):
-            self._staged = (self.substeps, interp, stage_force(self.force, self.substeps, interp))
-        return self._staged[2]
-
-
-@dataclass
-class OutputErrorProblem:
-    """Residuals of the output error for fixed records, chain and simulation settings.
-
-    Build once, evaluate many times (``refine`` does).  The substeps per record are fixed
-    at construction so that the residuals are a smooth function of theta (a step count that
-    changed with theta would make finite differences meaningless).
-    """
-
-    structure: Any
-    records: list[_Record]
-    processing: Processing
-    backend: str = "numpy"
-    interp: str = "moments"
-
-    @property
-    def chain(self) -> Processing:
-        """The processing run on measured and simulated records."""
-        return self.processing
-
-    @property
-    def n_residuals(self) -> int:
-        return sum(r.target.size for r in self.records)
-
-    @property
-    def n_groups(self) -> int:
-        return sum(r.target.shape[1] for r in self.records)
-
-    @classmethod
-    def build(cls, structure: Any, records: Recording | Sequence[Recording],
-              processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
-              theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
-              backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
-              initial: str = "auto", interp: str | None = None) -> "OutputErrorProblem":
-        """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
-        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets).
-        ``interp``: the measured force between samples (``stage_force``; None =
-        ``simulate.grid.MEASURED_FORCE_INTERP``, read at call time)."""
-        processing = processing or Processing()
-        chain = processing
-        interp = interp or _grid.MEASURED_FORCE_INTERP
-        recs = [records] if isinstance(records, Recording) else list(records)
-        if not recs:
-            raise ValueError("output error needs at least one record")
-        use = _choose_backend(structure, backend)
-        per_rec: list[int | None]
-        if isinstance(substeps, (list, tuple)):
-            if len(substeps) != len(recs):
-                raise ValueError("substeps: one value per record expected")
-            per_rec = [int(m) for m in substeps]
-        elif isinstance(substeps, (int, np.integer)):
-            per_rec = [int(substeps)] * len(recs)
-        else:
-            per_rec = [None] * len(recs)
-        prepared = []
-        for rec, m in zip(recs, per_rec):
-            q0, v0, force = initial_state_and_force(structure, rec, processing,
-                                                    initial=initial, force_gate=force_gate)
-            meas = chain.apply(rec, structure.dofs)
-            qtys = _quantities(rec, structure.dofs, quantity)
-            target = _extract(meas, qtys)
-            rms = np.sqrt(np.mean(target ** 2, axis=0))
-            if np.any(rms <= 0):
-                bad = [d for d, r in zip(structure.dofs, rms) if r <= 0]
-                raise ValueError(f"{rec.name}: processed {qtys} of DOF(s) {bad} is identically 0")
-            if m is None:
-                if theta_ref is None:
-                    raise ValueError("substeps='auto' needs theta_ref")
-                th = np.atleast_2d(np.asarray(theta_ref, dtype=float))
-                m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
-                                  omega_h=omega_h, backend=use, interp=interp)
-            state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
-                                        np.sqrt(np.mean(meas.v ** 2, axis=0))])
-            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
-        return cls(structure, prepared, processing, use, interp)
-
-    def simulated_states(self, thetas: np.ndarray, k: int,
-                         force_scale: np.ndarray | None = None, need: str = "qva"
-                         ) -> list[States | None]:
-        """Record ``k`` simulated for each set and passed through the chain, one States per
-        set (None if the simulation diverged; quantities not in ``need`` are NaN)."""
-        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale, need=need)
-        out: list[States | None] = []
-        for b in range(len(ok)):
-            if not ok[b]:
-                out.append(None)
-                continue
-            out.append(States(st.t, st.q[b], st.v[b], st.a[b], st.f, st.name, st.has_force,
-                              st.start_index, st.decimation))
-        return out
-
-    def weight(self, k: int) -> np.ndarray:
-        """(n_dof,) normalisation of record ``k``'s residuals: 1 / (RMS sqrt(T * groups)),
-        so the sum of squares over all records is the mean NMSE."""
-        r = self.records[k]
-        return 1.0 / (r.rms * math.sqrt(r.target.shape[0] * self.n_groups))
-
-    def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
-                         dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                         record: _Record | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
-        ``record`` replaces the stored one (e.g. the same record with another force)."""
-        r = record or self.records[k]
-        need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
-        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need)
-        sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
-                       axis=-1)
-        return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
-
-    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
-                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                   record: _Record | None = None, need: str = "qva"
-                   ) -> tuple[States, np.ndarray]:
-        """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
-        on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
-        quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
-        sets whose simulation stayed finite)."""
-        r = record or self.records[k]
-        q0 = r.q0 if dq0 is None else r.q0 + dq0
-        v0 = r.v0 if dv0 is None else r.v0 + dv0
-        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, r.force,
-                       substeps=r.substeps, backend=self.backend, interp=self.interp,
-                       force_scale=force_scale, staged_force=r.staged(self.interp))
-        q, v, a = sim.q, sim.v, sim.a
-        ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
-              & np.all(np.isfinite(a), axis=(1, 2)))
-        if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
-            q, v, a = (np.where(ok[:, None, None], x, 0.0) for x in (q, v, a))
-        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a, need)
-        return st, ok
-
-    def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
-                  dq0: np.ndarray | None = None, dv0: np.ndarray | None = None) -> np.ndarray:
-        """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
-        squares is the mean NMSE over records and DOFs (each DOF of each record divided by
-        its measured RMS, so records and DOFs of different amplitude weigh the same).
-        ``force_scales`` (B, n_records): optional per-record force multipliers;
-        ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state."""
-        th = np.atleast_2d(np.asarray(thetas, dtype=float))
-        B = th.shape[0]
-        out = np.empty((B, self.n_residuals))
-        col = 0
-        for k, r in enumerate(self.records):
-            fs = None if force_scales is None else force_scales[:, k]
-            res, ok = self.record_residuals(th, k, fs, None if dq0 is None else dq0[:, k],
-                                            None if dv0 is None else dv0[:, k])
-            size = r.target.size
-            out[:, col:col + size] = res
-            out[~ok, col:col + size] = np.nan
-            col += size
-        return out
-
-    def cost(self, thetas: Any) -> np.ndarray:
-        """(B,) sum of squared residuals (inf for diverged simulations)."""
-        c = np.sum(self.residuals(thetas) ** 2, axis=1)
-        c[~np.isfinite(c)] = np.inf
-        return c
-
-    def head(self, n_keep: Sequence[int]) -> "OutputErrorProblem":
-        """The same problem on the first ``n_keep[k]`` processed samples of each record
-        (the raw record is cut after the matching raw sample, then re-processed)."""
-        recs = []
-        for r, nk in zip(self.records, n_keep):
-            st = self.chain.apply(r.rec, self.structure.dofs)
-            stop = st.start_index + st.decimation * int(nk)
-            rec = r.rec.slice(0, min(len(r.rec), stop + 1))
-            meas = self.chain.apply(rec, self.structure.dofs)
-            target = _extract(meas, r.quantities)
-            force = None if r.force is None else r.force[:len(rec)]
-            recs.append(_Record(rec, r.q0, r.v0, force, r.quantities, target,
-                                np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
-                                r.state_rms))
-        return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
-                                  self.interp)
-
-
-def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
-    """Quantity compared per DOF: 'auto' = the lowest derivative that was *measured*
-    (disp, else vel, else acc), so nothing the chain derived is preferred to a measurement."""
-    if isinstance(quantity, str) and quantity != "auto":
-        if quantity not in _QTY_ATTR:
-            raise ValueError(f"quantity must be 'auto', 'disp', 'vel' or 'acc', got {quantity!r}")
-        return [quantity] * len(dofs)
-    if not isinstance(quantity, str):
-        q = list(quantity)
-        if len(q) != len(dofs) or any(x not in _QTY_ATTR for x in q):
-            raise ValueError(f"quantity per DOF must be {len(dofs)} of disp/vel/acc, got {q}")
-        return q
-    out = []
-    for d in dofs:
-        for qty in ("disp", "vel", "acc"):
-            if rec.get(qty, d) is not None:
-                out.append(qty)
-                break
-        else:
-            raise ValueError(f"{rec.name}: DOF {d!r} has no measured disp/vel/acc")
-    return out
-
-
-def _extract(st: States, qtys: Sequence[str]) -> np.ndarray:
-    return np.stack([getattr(st, _QTY_ATTR[q])[:, k] for k, q in enumerate(qtys)], axis=-1)
-
-
-# ---------------------------------------------------------------------------- metrics
-def output_error(structure: Any, thetas: Any, records: Recording | Sequence[Recording],
-                 processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
-                 **kw: Any) -> np.ndarray:
-    """(B,) normalised output-error cost of each parameter set: the mean over records and
-    DOFs of MSE / (measured RMS)^2 (0 = perfect, 1 = as bad as predicting zero).
-
-    Each record is simulated (``simulate``), rebuilt as a Recording with the measured
-    channels, put through the same chain and compared with the processed measurement on
-    the measured quantities.  ``kw``: substeps ("auto"), backend, force_gate, initial,
-    interp, omega_h (see ``OutputErrorProblem.build``).
-    """
-    th = np.atleast_2d(np.asarray(thetas, dtype=float))
-    prob = OutputErrorProblem.build(structure, records, processing, quantity=quantity,
-                                    theta_ref=th, **kw)
-    return prob.cost(th)
-
-
-def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[Recording],
-                     processing: Processing | None = None, *, chain: bool = True,
-                     dof_reduce: str = "mean", **kw: Any) -> np.ndarray:
-    """(B,) the paper's metric: MSE [m^2] between simulated and measured (processed)
-    displacement, averaged over DOFs and records (paper Sec. 3.1 / 3.2).
-
-    ``chain=True`` (default) passes the simulated record through the same chain as the
-    measurement (unbiased); ``chain=False`` compares the raw simulated displacement, taken
-    where the chain kept samples, with the processed measurement, as the paper did.
-    ``dof_reduce="sum"`` is the paper's LO-NO definition (x and y errors added).  inf for a
-    diverged simulation.
-    """
-    if dof_reduce not in ("mean", "sum"):
-        raise ValueError("dof_reduce must be 'mean' or 'sum'")
-    th = np.atleast_2d(np.asarray(thetas, dtype=float))
-    prob = OutputErrorProblem.build(structure, records, processing, quantity="disp",
-                                    theta_ref=th, **kw)
-    total = np.zeros(th.shape[0])
-    for k, r in enumerate(prob.records):
-        if chain:
-            sims = [None if st is None else st.q
-                    for st in prob.simulated_states(th, k, need="q")]
-        else:
-            meas = prob.chain.apply(r.rec, structure.dofs)
-            sim = simulate(structure, th, r.rec.time, r.q0, r.v0, r.force, substeps=r.substeps,
-                           backend=prob.backend, interp=prob.interp)
-            sl = slice(meas.start_index, meas.start_index + meas.decimation * len(meas),
-                       meas.decimation)
-            sims = [sim.q[b, sl] for b in range(th.shape[0])]
-        for b, q in enumerate(sims):
-            if q is None or not np.all(np.isfinite(q)):
-                total[b] = np.inf
-                continue
-            mse = np.mean((q - r.target) ** 2, axis=0)
-            total[b] += mse.mean() if dof_reduce == "mean" else mse.sum()
-    return total / len(prob.records)
 
 
 # ---------------------------------------------------------------------------- refine
@@ -570,86 +283,6 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 
 
-#: parametric-bootstrap replicates simulated together (each with its own force)
-_REPLICATE_CHUNK = 16
-#: spread of the force's shape between samples in the parametric replicates, as a
-#: fraction of the difference between reading the samples as straight lines and with
-#: their own moments (``stage_force``); 0 switches it off.  Measured on a 3-DOF chain hit
-#: by 3-5-sample pulses (docs/perf.md): the moment-matched reading leaves 0.3-0.4 of that
-#: difference as bias, which the intervals must hold
-FORCE_SHAPE_SPREAD = 0.5
-
-
-def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
-                     r: np.ndarray, series: Sequence[Series], n_rep: int = 64,
-                     seed: int = 1) -> np.ndarray:
-    """(n_rep, n_residuals) residual perturbations of parametric-bootstrap replicates.
-
-    Each replicate: the measurement noise as a phase-randomised copy of the residuals
-    ``r`` (same spectrum, so the same correlation), plus -- for impulsive records -- the
-    change of the simulated, processed response when the force in the pulse gets a new
-    draw of the force sensor's noise (its level read off the force channel outside the
-    pulse, where it measures nothing but noise).  The force noise matters because its
-    effect is not stationary: it starts a free decay that stays correlated to the end.
-    And, for impulsive records, a random share (``FORCE_SHAPE_SPREAD``) of the change
-    between reading the sampled force as straight lines and with its own moments: what a
-    pulse of a few samples leaves unknown about the force between them."""
-    rng = np.random.default_rng(seed)
-    shape_rng = np.random.default_rng([seed, 20])  # its own stream: rng's draws unchanged
-    E = np.stack([phase_randomized(r, series, rng) for _ in range(n_rep)])
-    col = 0
-    for k, rec in enumerate(prob.records):
-        size = rec.target.size
-        sigma, pulse = _force_noise(prob.structure, rec)
-        if sigma is not None:
-            fs = None if "force_scales" not in extra else extra["force_scales"][:, k]
-            dq = None if "dq0" not in extra else extra["dq0"][:, k]
-            dv = None if "dv0" not in extra else extra["dv0"][:, k]
-            base, ok = prob.record_residuals(theta, k, fs, dq, dv)
-            noisy = np.repeat(rec.force[None], n_rep, axis=0)
-            for b in range(n_rep):
-                noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
-                                                                noisy.shape[2]))
-            # one batched simulation (a force per set) per chunk of replicates
-            rep = lambda x, c: None if x is None else np.repeat(x, c, axis=0)
-            for b0 in range(0, n_rep, _REPLICATE_CHUNK):
-                chunk = noisy[b0:b0 + _REPLICATE_CHUNK]
-                c = len(chunk)
-                alt = dataclasses.replace(rec, force=chunk, _staged=None)
-                rb, okb = prob.record_residuals(rep(np.atleast_2d(theta), c), k, rep(fs, c),
-                                                rep(dq, c), rep(dv, c), record=alt)
-                if ok[0]:
-                    good = np.flatnonzero(okb)
-                    E[b0 + good, col:col + size] += rb[good] - base[0]
-            if FORCE_SHAPE_SPREAD > 0 and ok[0] and prob.interp != "linear":
-                # the force between its samples is unknown: a replicate's force shape
-                # varies by FORCE_SHAPE_SPREAD x (straight lines - the moment-matched
-                # reading), the scale of what sampling a short pulse leaves undetermined
-                lin = dataclasses.replace(prob, interp="linear")
-                rl, okl = lin.record_residuals(theta, k, fs, dq, dv)
-                if okl[0]:
-                    xi = shape_rng.standard_normal(n_rep)
-                    E[:, col:col + size] += np.outer(xi, FORCE_SHAPE_SPREAD * (rl - base)[0])
-        col += size
-    # centred: a nonlinear response to force noise has a small mean shift (second order),
-    # which is the estimator's bias estimate, not a spread to sample from
-    return E - E.mean(axis=0)
-
-
-def _force_noise(structure: Any, rec: _Record) -> tuple[np.ndarray | None, np.ndarray]:
-    """(per-DOF force-sensor noise std, boolean mask of the pulse samples) of an impulsive
-    record; (None, empty) when the force is continuous or absent."""
-    if rec.force is None or not rec.rec.has_force(structure.dofs):
-        return None, np.zeros(0, dtype=bool)
-    raw = rec.rec.stack("force", structure.dofs, fill=0.0)
-    pulse = np.any(rec.force != 0, axis=1)
-    if raw.shape != rec.force.shape or not pulse.any() or pulse.mean() > 0.05:
-        return None, np.zeros(0, dtype=bool)
-    quiet = raw[~pulse]
-    sigma = 1.4826 * np.median(np.abs(quiet - np.median(quiet, axis=0)), axis=0)
-    return sigma, pulse
-
-
 def _wider(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
     """The covariance with the larger variance per parameter (correlations from it too)."""
     pick = np.diag(c1) >= np.diag(c2)
@@ -659,11 +292,6 @@ def _wider(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
     corr = np.where(np.outer(pick, pick), corr1, np.where(np.outer(~pick, ~pick), corr2,
                                                           0.5 * (corr1 + corr2)))
     return corr * np.outer(s, s)
-
-
-def _state_derived(rec: Recording, dofs: Sequence[str]) -> bool:
-    """Some DOF's displacement or velocity is not measured (the chain derives it)."""
-    return any(rec.get("disp", d) is None or rec.get("vel", d) is None for d in dofs)
 
 
 def _bound(v: float | None, default: float) -> float:

@@ -1,0 +1,308 @@
+"""The output-error problem: records simulated from their force and initial state and
+passed through the same processing chain as the measurement (see ``refine`` for the fit)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from .processing import Processing, States
+from .recording import Recording
+from .simulate import OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force, simulate, stage_force
+from .simulate import grid as _grid
+
+
+_QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
+
+# ---------------------------------------------------------------------------- problem
+@dataclass
+class _Record:
+    """One measured record, prepared once: processed targets, initial state, force."""
+
+    rec: Recording
+    q0: np.ndarray
+    v0: np.ndarray
+    force: np.ndarray | None
+    quantities: list[str]        # compared quantity per DOF
+    target: np.ndarray           # (T', n_dof) processed measured values of those quantities
+    rms: np.ndarray              # (n_dof,) RMS of each target column
+    substeps: int = 1
+    state_rms: np.ndarray | None = None  # (2 n_dof,) RMS of processed q then v (scales)
+    _staged: tuple[int, str, np.ndarray] | None = None
+
+    def staged(self, interp: str) -> np.ndarray | None:
+        """The force on the RK4 stage grid, computed once per (substeps, interp)."""
+        if self.force is None:
+            return None
+        if self._staged is None or self._staged[:2] != (self.substeps, interp):
+            self._staged = (self.substeps, interp, stage_force(self.force, self.substeps, interp))
+        return self._staged[2]
+
+
+@dataclass
+class OutputErrorProblem:
+    """Residuals of the output error for fixed records, chain and simulation settings.
+
+    Build once, evaluate many times (``refine`` does).  The substeps per record are fixed
+    at construction so that the residuals are a smooth function of theta (a step count that
+    changed with theta would make finite differences meaningless).
+    """
+
+    structure: Any
+    records: list[_Record]
+    processing: Processing
+    backend: str = "numpy"
+    interp: str = "moments"
+
+    @property
+    def chain(self) -> Processing:
+        """The processing run on measured and simulated records."""
+        return self.processing
+
+    @property
+    def n_residuals(self) -> int:
+        return sum(r.target.size for r in self.records)
+
+    @property
+    def n_groups(self) -> int:
+        return sum(r.target.shape[1] for r in self.records)
+
+    @classmethod
+    def build(cls, structure: Any, records: Recording | Sequence[Recording],
+              processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
+              theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
+              backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
+              initial: str = "auto", interp: str | None = None) -> "OutputErrorProblem":
+        """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
+        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets).
+        ``interp``: the measured force between samples (``stage_force``; None =
+        ``simulate.grid.MEASURED_FORCE_INTERP``, read at call time)."""
+        processing = processing or Processing()
+        chain = processing
+        interp = interp or _grid.MEASURED_FORCE_INTERP
+        recs = [records] if isinstance(records, Recording) else list(records)
+        if not recs:
+            raise ValueError("output error needs at least one record")
+        use = _choose_backend(structure, backend)
+        per_rec: list[int | None]
+        if isinstance(substeps, (list, tuple)):
+            if len(substeps) != len(recs):
+                raise ValueError("substeps: one value per record expected")
+            per_rec = [int(m) for m in substeps]
+        elif isinstance(substeps, (int, np.integer)):
+            per_rec = [int(substeps)] * len(recs)
+        else:
+            per_rec = [None] * len(recs)
+        prepared = []
+        for rec, m in zip(recs, per_rec):
+            q0, v0, force = initial_state_and_force(structure, rec, processing,
+                                                    initial=initial, force_gate=force_gate)
+            meas = chain.apply(rec, structure.dofs)
+            qtys = _quantities(rec, structure.dofs, quantity)
+            target = _extract(meas, qtys)
+            rms = np.sqrt(np.mean(target ** 2, axis=0))
+            if np.any(rms <= 0):
+                bad = [d for d, r in zip(structure.dofs, rms) if r <= 0]
+                raise ValueError(f"{rec.name}: processed {qtys} of DOF(s) {bad} is identically 0")
+            if m is None:
+                if theta_ref is None:
+                    raise ValueError("substeps='auto' needs theta_ref")
+                th = np.atleast_2d(np.asarray(theta_ref, dtype=float))
+                m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
+                                  omega_h=omega_h, backend=use, interp=interp)
+            state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
+                                        np.sqrt(np.mean(meas.v ** 2, axis=0))])
+            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
+        return cls(structure, prepared, processing, use, interp)
+
+    def simulated_states(self, thetas: np.ndarray, k: int,
+                         force_scale: np.ndarray | None = None, need: str = "qva"
+                         ) -> list[States | None]:
+        """Record ``k`` simulated for each set and passed through the chain, one States per
+        set (None if the simulation diverged; quantities not in ``need`` are NaN)."""
+        st, ok = self._processed(np.atleast_2d(thetas), k, force_scale, need=need)
+        out: list[States | None] = []
+        for b in range(len(ok)):
+            if not ok[b]:
+                out.append(None)
+                continue
+            out.append(States(st.t, st.q[b], st.v[b], st.a[b], st.f, st.name, st.has_force,
+                              st.start_index, st.decimation))
+        return out
+
+    def weight(self, k: int) -> np.ndarray:
+        """(n_dof,) normalisation of record ``k``'s residuals: 1 / (RMS sqrt(T * groups)),
+        so the sum of squares over all records is the mean NMSE."""
+        r = self.records[k]
+        return 1.0 / (r.rms * math.sqrt(r.target.shape[0] * self.n_groups))
+
+    def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
+                         dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
+                         record: _Record | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
+        ``record`` replaces the stored one (e.g. the same record with another force)."""
+        r = record or self.records[k]
+        need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
+        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need)
+        sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
+                       axis=-1)
+        return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
+
+    def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
+                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
+                   record: _Record | None = None, need: str = "qva"
+                   ) -> tuple[States, np.ndarray]:
+        """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
+        on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
+        quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
+        sets whose simulation stayed finite)."""
+        r = record or self.records[k]
+        q0 = r.q0 if dq0 is None else r.q0 + dq0
+        v0 = r.v0 if dv0 is None else r.v0 + dv0
+        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, r.force,
+                       substeps=r.substeps, backend=self.backend, interp=self.interp,
+                       force_scale=force_scale, staged_force=r.staged(self.interp))
+        q, v, a = sim.q, sim.v, sim.a
+        ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
+              & np.all(np.isfinite(a), axis=(1, 2)))
+        if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
+            q, v, a = (np.where(ok[:, None, None], x, 0.0) for x in (q, v, a))
+        st = self.chain.apply_simulated(r.rec, self.structure.dofs, q, v, a, need)
+        return st, ok
+
+    def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
+                  dq0: np.ndarray | None = None, dv0: np.ndarray | None = None) -> np.ndarray:
+        """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
+        squares is the mean NMSE over records and DOFs (each DOF of each record divided by
+        its measured RMS, so records and DOFs of different amplitude weigh the same).
+        ``force_scales`` (B, n_records): optional per-record force multipliers;
+        ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state."""
+        th = np.atleast_2d(np.asarray(thetas, dtype=float))
+        B = th.shape[0]
+        out = np.empty((B, self.n_residuals))
+        col = 0
+        for k, r in enumerate(self.records):
+            fs = None if force_scales is None else force_scales[:, k]
+            res, ok = self.record_residuals(th, k, fs, None if dq0 is None else dq0[:, k],
+                                            None if dv0 is None else dv0[:, k])
+            size = r.target.size
+            out[:, col:col + size] = res
+            out[~ok, col:col + size] = np.nan
+            col += size
+        return out
+
+    def cost(self, thetas: Any) -> np.ndarray:
+        """(B,) sum of squared residuals (inf for diverged simulations)."""
+        c = np.sum(self.residuals(thetas) ** 2, axis=1)
+        c[~np.isfinite(c)] = np.inf
+        return c
+
+    def head(self, n_keep: Sequence[int]) -> "OutputErrorProblem":
+        """The same problem on the first ``n_keep[k]`` processed samples of each record
+        (the raw record is cut after the matching raw sample, then re-processed)."""
+        recs = []
+        for r, nk in zip(self.records, n_keep):
+            st = self.chain.apply(r.rec, self.structure.dofs)
+            stop = st.start_index + st.decimation * int(nk)
+            rec = r.rec.slice(0, min(len(r.rec), stop + 1))
+            meas = self.chain.apply(rec, self.structure.dofs)
+            target = _extract(meas, r.quantities)
+            force = None if r.force is None else r.force[:len(rec)]
+            recs.append(_Record(rec, r.q0, r.v0, force, r.quantities, target,
+                                np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
+                                r.state_rms))
+        return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
+                                  self.interp)
+
+
+def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
+    """Quantity compared per DOF: 'auto' = the lowest derivative that was *measured*
+    (disp, else vel, else acc), so nothing the chain derived is preferred to a measurement."""
+    if isinstance(quantity, str) and quantity != "auto":
+        if quantity not in _QTY_ATTR:
+            raise ValueError(f"quantity must be 'auto', 'disp', 'vel' or 'acc', got {quantity!r}")
+        return [quantity] * len(dofs)
+    if not isinstance(quantity, str):
+        q = list(quantity)
+        if len(q) != len(dofs) or any(x not in _QTY_ATTR for x in q):
+            raise ValueError(f"quantity per DOF must be {len(dofs)} of disp/vel/acc, got {q}")
+        return q
+    out = []
+    for d in dofs:
+        for qty in ("disp", "vel", "acc"):
+            if rec.get(qty, d) is not None:
+                out.append(qty)
+                break
+        else:
+            raise ValueError(f"{rec.name}: DOF {d!r} has no measured disp/vel/acc")
+    return out
+
+
+def _extract(st: States, qtys: Sequence[str]) -> np.ndarray:
+    return np.stack([getattr(st, _QTY_ATTR[q])[:, k] for k, q in enumerate(qtys)], axis=-1)
+
+
+# ---------------------------------------------------------------------------- metrics
+def output_error(structure: Any, thetas: Any, records: Recording | Sequence[Recording],
+                 processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
+                 **kw: Any) -> np.ndarray:
+    """(B,) normalised output-error cost of each parameter set: the mean over records and
+    DOFs of MSE / (measured RMS)^2 (0 = perfect, 1 = as bad as predicting zero).
+
+    Each record is simulated (``simulate``), rebuilt as a Recording with the measured
+    channels, put through the same chain and compared with the processed measurement on
+    the measured quantities.  ``kw``: substeps ("auto"), backend, force_gate, initial,
+    interp, omega_h (see ``OutputErrorProblem.build``).
+    """
+    th = np.atleast_2d(np.asarray(thetas, dtype=float))
+    prob = OutputErrorProblem.build(structure, records, processing, quantity=quantity,
+                                    theta_ref=th, **kw)
+    return prob.cost(th)
+
+
+def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[Recording],
+                     processing: Processing | None = None, *, chain: bool = True,
+                     dof_reduce: str = "mean", **kw: Any) -> np.ndarray:
+    """(B,) the paper's metric: MSE [m^2] between simulated and measured (processed)
+    displacement, averaged over DOFs and records (paper Sec. 3.1 / 3.2).
+
+    ``chain=True`` (default) passes the simulated record through the same chain as the
+    measurement (unbiased); ``chain=False`` compares the raw simulated displacement, taken
+    where the chain kept samples, with the processed measurement, as the paper did.
+    ``dof_reduce="sum"`` is the paper's LO-NO definition (x and y errors added).  inf for a
+    diverged simulation.
+    """
+    if dof_reduce not in ("mean", "sum"):
+        raise ValueError("dof_reduce must be 'mean' or 'sum'")
+    th = np.atleast_2d(np.asarray(thetas, dtype=float))
+    prob = OutputErrorProblem.build(structure, records, processing, quantity="disp",
+                                    theta_ref=th, **kw)
+    total = np.zeros(th.shape[0])
+    for k, r in enumerate(prob.records):
+        if chain:
+            sims = [None if st is None else st.q
+                    for st in prob.simulated_states(th, k, need="q")]
+        else:
+            meas = prob.chain.apply(r.rec, structure.dofs)
+            sim = simulate(structure, th, r.rec.time, r.q0, r.v0, r.force, substeps=r.substeps,
+                           backend=prob.backend, interp=prob.interp)
+            sl = slice(meas.start_index, meas.start_index + meas.decimation * len(meas),
+                       meas.decimation)
+            sims = [sim.q[b, sl] for b in range(th.shape[0])]
+        for b, q in enumerate(sims):
+            if q is None or not np.all(np.isfinite(q)):
+                total[b] = np.inf
+                continue
+            mse = np.mean((q - r.target) ** 2, axis=0)
+            total[b] += mse.mean() if dof_reduce == "mean" else mse.sum()
+    return total / len(prob.records)
+
+
+
+def _state_derived(rec: Recording, dofs: Sequence[str]) -> bool:
+    """Some DOF's displacement or velocity is not measured (the chain derives it)."""
+    return any(rec.get("disp", d) is None or rec.get("vel", d) is None for d in dofs)
+
+
