@@ -17,7 +17,7 @@ of their columns.  The anchor is moved (``relinearize``) as the generator's mean
 Gauss-Newton outer loop.
 
 ``noise`` holds parametric-bootstrap perturbations of the residuals (measurement noise with
-the residuals' own spectrum, force-sensor noise through the dynamics; ``refine.noise_replicates``):
+the residuals' own spectrum, force-sensor noise through the dynamics; ``replicates.noise_replicates``):
 each SIVA epoch fits the anchor's residuals plus one of them, so the spread of the per-epoch
 samples (Approach II) is the spread of the estimator over noise realisations.
 """
@@ -96,7 +96,9 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
               n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
               substeps: Sequence[int] | None = None) -> Linearization:
     """Linearise the output error of ``records`` at ``theta`` (see the module doc)."""
-    from .refine import OutputErrorProblem, _log_mask, _state_derived, noise_replicates
+    from .output_error import OutputErrorProblem, _state_derived
+    from .refine import _log_mask
+    from .replicates import noise_replicates
 
     theta = np.asarray(theta, dtype=float).ravel()
     free = list(structure.free)
