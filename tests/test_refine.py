@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from siva_core import (OutputErrorProblem, Processing, Recording, Structure, displacement_mse,
-                       output_error, refine, simulate, simulated_recording)
-from siva_core._impl.refine import force_profiled_output_error
+                       force_profiled_output_error, output_error, refine, simulate,
+                       simulated_recording)
 from siva_core._impl import output_error as refine_mod  # monkeypatched: private behaviour
 
 DUFFING_TRUTH = np.array([0.5, 4000.0, 300.0, 3e8])
