@@ -181,6 +181,31 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def markdown(results: list[dict]) -> str:
+    """One markdown table for all structures (docs/perf.md): coverage [binomial 95 %] and
+    mean bias in standard errors per parameter, for Approach II and ``best``."""
+    lines = ["| structure | runs | CPU s / fit | parameter | II covers | II bias/se | "
+             "`best` covers | `best` bias/se |", "|---|---|---|---|---|---|---|---|"]
+    for res in results:
+        s = summary(res)
+        first = True
+        for p, e in s["parameters"].items():
+            cells = []
+            for key in KEYS:
+                v = e[key]
+                lo, hi = v["coverage_ci95"]
+                out = not 0.85 <= v["coverage"] <= 1.0
+                cov = f"{100 * v['coverage']:.0f} % [{100 * lo:.0f}-{100 * hi:.0f}]"
+                bias = f"{v['bias_se']:+.2f}"
+                cells += [f"**{cov}**" if out else cov,
+                          f"**{bias}**" if abs(v["bias_se"]) > 1 else bias]
+            head = (f"{res['case']} | {s['runs']} | {s['cpu_s_mean']:.0f}" if first
+                    else " | | ")
+            lines.append(f"| {head} | {p} | " + " | ".join(cells) + " |")
+            first = False
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20)
@@ -190,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="how output-error fits read a measured force between samples")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "coverage.json"))
     ap.add_argument("--fresh", action="store_true", help="ignore partial results on file")
+    ap.add_argument("--table-only", action="store_true",
+                    help="fit nothing: print the tables (and a markdown one) of the runs on file")
     args = ap.parse_args(argv)
     interp = args.force_interp or "default"
     if args.force_interp:
@@ -202,6 +229,16 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--cases: unknown structure(s) {unknown}; known: {sorted(CASES)}")
     out = Path(args.out)
     results = []
+    if args.table_only:
+        for name in names:
+            partial = out.with_suffix(f".{name}.partial.json")
+            done = load_partial(partial, name, interp)
+            if done:
+                results.append({"case": name, "names": CASES[name].structure().free,
+                                "force_interp": interp, "runs": done})
+                print(table(results[-1]))
+        print("\n" + markdown(results))
+        return 0
     for name in names:
         partial = out.with_suffix(f".{name}.partial.json")
         if args.fresh and partial.exists():
