@@ -3,12 +3,13 @@
 Per system, one daemon thread empties three slots, in this order:
 
 1. a ``best`` job: the first output-error estimate (``siva_core.recommend_best``:
-   Approach III over the equation-error ensemble, then the output-error refinement), and
-   the output-error phase's first anchor, linearised at it (``anchoring.py``);
+   Approach III over the equation-error ensemble, then the output-error refinement); it
+   queues the first anchor job (3.), which runs after the records are fitted (2.);
 2. the per-record monitoring (``step``: one output-error fit per new record, the
    headline and the drift test), until no record is left;
-3. an ``anchor`` job: after the data changed, the linearisation at the current headline
-   (so the headline already includes the new records);
+3. an ``anchor`` job: the output-error phase's linearisation (``anchoring.py``) at the
+   current headline (so the headline already includes the new records), first settled at
+   the training records' output-error optimum (``siva_core.settle``);
 4. a validation job: ``validation.py``'s test of the headline and the ensemble.
 
 A job not yet started is superseded by a newer one of its kind.  Jobs carry frozen copies
@@ -17,6 +18,7 @@ between two epochs, so ``siva replay`` can reproduce the trainer exactly from th
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -170,7 +172,13 @@ class Refiner:
                     n_candidates=int(len(job.candidates)), seconds=seconds)
         self._on_best(best, job)
         if job.anchor:
-            self._anchor(job, best.theta(self.structure.free), "best")
+            # the first anchor: after the per-record fits (``_loop`` runs the monitor
+            # first), at the headline they give -- a second, record-by-record refinement
+            # from ``best``, which a refinement stopped short of the optimum needs
+            with self._cv:
+                if self._anchor_job is None:
+                    self._anchor_job = dataclasses.replace(job, kind="anchor", candidates=None,
+                                                           refine_records=())
 
     def _run_anchor(self, job: RefineJob) -> None:
         theta = job.theta if job.theta is not None else self._headline_theta()
@@ -179,15 +187,29 @@ class Refiner:
         self._anchor(job, theta, "headline" if job.theta is None else "given")
 
     def _anchor(self, job: RefineJob, theta: np.ndarray, source: str) -> None:
+        """Linearise at ``theta`` once it is settled at the training records' output-error
+        optimum (``siva_core.settle``: the linearisation's optimum is then its anchor)."""
+        from siva_core import settle
+
         t0 = time.perf_counter()
+        proc = job.data.processing if job.data.processing is not None else Processing()
         with REFINE_LOCK:
             if self._stop.is_set():
                 return
-            anchor = build_anchor(self.structure, theta, job.data, job.train_records,
+            settled = settle(self.structure, theta, job.train_records, proc)
+            if self._stop.is_set():
+                return
+            anchor = build_anchor(self.structure, settled.theta, job.data, job.train_records,
                                   job.val_records, source=source, n_noise=job.n_noise,
                                   seed=job.seed)
-        log.info("%s: output-error anchor (%s) on %d+%d record(s) in %.1f s", self.name,
-                 source, len(job.train_records), len(job.val_records), time.perf_counter() - t0)
+        if not settled.converged:
+            log.warning("%s: the anchor is not at the output-error optimum (last Gauss-Newton "
+                        "step %.1f standard errors): the ensemble may be off", self.name,
+                        settled.step_se)
+        log.info("%s: output-error anchor (%s) on %d+%d record(s) in %.1f s; settled in %d "
+                 "Gauss-Newton step(s), last step %.2f standard errors", self.name, source,
+                 len(job.train_records), len(job.val_records), time.perf_counter() - t0,
+                 settled.steps, settled.step_se)
         self._on_anchor(anchor)
 
     def _run_validation(self, job: ValidationJob) -> None:
