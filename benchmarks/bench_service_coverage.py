@@ -18,7 +18,10 @@ and the mean bias in standard errors (mean of (mean - truth) / std); writes JSON
 run keeps what it measured).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_service_coverage.py [--case lono|chain3_end_1k]
-        [--streams 20] [--seed 7000] [--train 1] [--val 1]
+        [--streams 20] [--seed 7000] [--train 1] [--val 1] [--later 60 100]
+
+``--later N ...``: also read each stream's ensemble once it holds >= N samples (or the
+trainer idles): does waiting for more samples change the coverage?
 
 Target (issue 18): 85-99 % per parameter over >= 20 streams.  With R = 20 a true 95 %
 coverage lands in 85-99 % with probability ~0.6; read the intervals.
@@ -53,10 +56,24 @@ def stream_records(case: Any, seed: int, n_train: int, n_val: int) -> list[tuple
     return out
 
 
+def _scored(est: dict[str, Any], key: str, names: list[str], truth: dict[str, float]
+            ) -> dict[str, Any]:
+    ps = est.get(key) or {}
+    per: dict[str, Any] = {}
+    for p in names:
+        s = ps.get(p) or {}
+        ci, mean, std = s.get("ci95"), s.get("mean"), s.get("std")
+        per[p] = {"mean": mean, "std": std, "ci95": ci, "ess": s.get("ess"),
+                  "covered": bool(ci and ci[0] <= truth[p] <= ci[1]),
+                  "z": (None if mean is None or not std else (mean - truth[p]) / std)}
+    return per
+
+
 def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
-               timeout_s: float = 900.0, poll_s: float = 0.5,
+               timeout_s: float = 900.0, poll_s: float = 0.5, later: tuple[int, ...] = (),
                settings_overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """One seeded stream through an in-process service; the first final ensemble."""
+    """One seeded stream through an in-process service; the first final ensemble (and,
+    with ``later``, the ensemble again once it holds at least each of those samples)."""
     from service.app import SivaService
     from service.estimate import estimate_view
     from service.settings import Settings
@@ -83,6 +100,16 @@ def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
                 if (est.get("ensemble_state") == "final" and est.get("estimate_source") == "best"):
                     break
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+            seen: dict[str, Any] = {}
+            for n in sorted(later):
+                while time.perf_counter() - w0 < timeout_s:
+                    e2 = estimate_view(svc.worker("cov").snapshot(), svc.counts("cov"))
+                    if e2.get("ensemble_state") == "final" and (
+                            (e2.get("ensemble_samples") or 0) >= n or e2.get("state") == "idle"):
+                        seen[str(n)] = {"samples": e2.get("ensemble_samples"),
+                                        "ensemble": _scored(e2, "ensemble", names, truth)}
+                        break
+                    time.sleep(poll_s)
         finally:
             svc.stop()
     final = est.get("ensemble_state") == "final"
@@ -90,15 +117,8 @@ def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
                            "epoch": est.get("epoch"), "samples": est.get("ensemble_samples"),
                            "anchor_source": (est.get("anchor") or {}).get("source")}
     for key in ("ensemble", "parameters"):
-        ps = est.get(key) or {}
-        per: dict[str, Any] = {}
-        for p in names:
-            s = ps.get(p) or {}
-            ci, mean, std = s.get("ci95"), s.get("mean"), s.get("std")
-            per[p] = {"mean": mean, "std": std, "ci95": ci,
-                      "covered": bool(ci and ci[0] <= truth[p] <= ci[1]),
-                      "z": (None if mean is None or not std else (mean - truth[p]) / std)}
-        row[key] = per
+        row[key] = _scored(est, key, names, truth)
+    row["later"] = seen
     row["validation"] = {k: (est.get("validation") or {}).get(k) for k in ("verdict", "T")}
     return row
 
@@ -143,6 +163,11 @@ def table(case: str, rows: list[dict[str, Any]], names: list[str]) -> str:
         lines.append(f"{p:>10} | {100 * e['coverage']:7.0f}% [{100 * e['ci95'][0]:5.1f},"
                      f"{100 * e['ci95'][1]:5.1f}]% {e['bias_se']:+8.2f} {e['rms_z']:6.2f}"
                      f" | {100 * h['coverage']:7.0f}% {h['bias_se']:+8.2f}")
+    for n in sorted({k for r in rows for k in r.get("later", {})}, key=int):
+        sub = [{**r, "ensemble": r["later"][n]["ensemble"]} for r in rows if n in r.get("later", {})]
+        later = summarise(sub, names)
+        lines.append(f"ensemble with >= {n} samples ({len(sub)} streams): " + " ".join(
+            f"{p} {100 * later[p]['coverage']:.0f}% (z rms {later[p]['rms_z']:.2f})" for p in names))
     lines.append(f"seconds per stream: wall {np.mean([r['wall_s'] for r in rows]):.1f} "
                  f"(max {np.max([r['wall_s'] for r in rows]):.1f}), CPU of this process "
                  f"{np.mean([r['cpu_s'] for r in rows]):.1f}")
@@ -157,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train", type=int, default=1)
     ap.add_argument("--val", type=int, default=1)
     ap.add_argument("--timeout", type=float, default=900.0, help="per stream, seconds")
+    ap.add_argument("--later", type=int, nargs="*", default=[],
+                    help="also read the ensemble once it holds this many samples (or idles)")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     import logging
@@ -169,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict[str, Any]] = []
     for i in range(args.streams):
         seed = args.seed + i
-        row = run_stream(case, seed, n_train=args.train, n_val=args.val, timeout_s=args.timeout)
+        row = run_stream(case, seed, n_train=args.train, n_val=args.val, timeout_s=args.timeout,
+                         later=tuple(args.later))
         rows.append(row)
         covered = [p for p in names if row["ensemble"][p]["covered"]]
         print(f"stream seed {seed}: final={row['final']} {row['wall_s']:.0f} s wall "
@@ -178,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{p}={row['ensemble'][p]['z']:+.1f}" if row['ensemble'][p]['z'] is not None
                   else f"{p}=-" for p in names), flush=True)
         out.write_text(json.dumps({"case": args.case, "names": names, "truth": case.truth,
-                                   "train": args.train, "val": args.val,
+                                   "train": args.train, "val": args.val, "seeds_from": args.seed,
                                    "summary": summarise(rows, names), "rows": rows}, indent=1))
     print(table(args.case, rows, names))
     return 0
