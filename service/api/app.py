@@ -25,14 +25,14 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from siva_core import RecordingError, SpecError, Structure
 from siva_core import RecordingTooLarge
 
-from .errors import ApiError, UploadTooLarge
-from .routes import router
+from service.errors import ApiError, UploadTooLarge
+from .routes.systems import router
 from .limits import LimitError, check_sampling_rate, check_structure
 from .security import SecurityMiddleware, allowed_hosts
-from .settings import Settings
-from .store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
-from .uploads import parse_upload
-from .executor import TrainerHandle, make_executor
+from service.settings import Settings
+from service.storage.store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
+from service.storage.uploads import parse_upload
+from service.fleet.executor import TrainerHandle, make_executor
 
 log = logging.getLogger("siva.service")
 
@@ -53,7 +53,7 @@ class _NoEvents:
 
 def _make_event_log(settings: Settings) -> Any:
     try:
-        from .mcap_log import EventLog
+        from service.storage.eventlog.writer import EventLog
     except ImportError as exc:
         log.warning("event log disabled (service.mcap_log unavailable: %s)", exc)
         return _NoEvents()
@@ -77,7 +77,7 @@ class SivaService:
         self.workers: dict[str, TrainerHandle] = {}
         self.executor: Any = None
         self.broken: dict[str, str] = {}
-        self.repairs: dict[str, Any] = {}  # name -> service.reconcile.Repair (this start)
+        self.repairs: dict[str, Any] = {}  # name -> service.replay.reconcile.Repair (this start)
         self._lock = threading.Lock()
         # supervision: a trainer thread that died is replaced (from its checkpoint) after
         # a back-off; until then /healthz says so
@@ -188,7 +188,7 @@ class SivaService:
         """Bring the event log of ``name`` in line with the store before its trainer
         starts (service/reconcile.py); a failure is logged, never fatal: the log is an
         audit trail, the store keeps serving."""
-        from .reconcile import reconcile
+        from service.replay.reconcile import reconcile
 
         if not hasattr(self.events, "folder"):  # the event log is disabled
             return
@@ -437,10 +437,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     from . import dashboard, metrics
 
     dashboard.install(app)  # GET /, /docs (offline Swagger UI), /static, latest-record
-    from .routes_diagnosis import router as diagnosis_router
+    from .routes.diagnosis import router as diagnosis_router
 
     app.include_router(diagnosis_router)
-    from .routes_export import router as export_router
+    from .routes.export import router as export_router
 
     app.include_router(export_router)
 

@@ -22,15 +22,15 @@ from starlette.concurrency import run_in_threadpool
 
 from siva_core import Recording, RecordingError
 
-from .routes import ERROR_RESPONSES, require_read_token
+from .routes.systems import ERROR_RESPONSES, require_read_token
 from .security import csp_with_scripts
-from .latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
-from .store import UnknownSystem
-from .timefmt import iso_utc
+from service.monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
+from service.storage.store import UnknownSystem
+from service.timefmt import iso_utc
 
 log = logging.getLogger("siva.service.dashboard")
 
-STATIC = Path(__file__).resolve().parent / "static"
+STATIC = Path(__file__).resolve().parents[1] / "static"
 
 router = APIRouter()
 
@@ -62,7 +62,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
     is one, else the headline means): measured vs simulated displacement [mm] and residual,
     Fourier spectra, CWT.  ``available: false`` with a ``reason`` while there is nothing to
     show yet.  Computed in a thread and cached per data version (record id + parameters)."""
-    from .errors import ApiError
+    from service.errors import ApiError
 
     svc = request.app.state.service
     w = svc.worker(name)  # 404 for an unknown system
@@ -96,7 +96,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
                 raise
             log.warning("%s: latest record with the trainer's chain failed (%s); own chain",
                         name, exc)
-            from .worker import processing_for
+            from ...storage.uploads import processing_for
             series = compute_latest(w.structure, rec, processing_for([rec], w.structure.dofs),
                                     theta)
         return {"system": name, "available": True, "record": record,

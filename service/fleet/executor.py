@@ -5,7 +5,7 @@ runs the trainers; only how a system's trainer is started, reached and stopped d
 Both executors hand the service *trainer handles* with one surface (``TrainerHandle``):
 the routes read published snapshots through it and never wait for training.
 
-* ``threads`` (default, ``make run``): a :class:`~service.worker.SystemWorker` per system,
+* ``threads`` (default, ``make run``): a :class:`~service.trainer.SystemWorker` per system,
   a thread in this process.
 * ``ray`` (``SIVA_EXECUTOR=ray``): systems are grouped into detached, named Ray actors
   that restart from their checkpoints when their process or node dies
@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 from siva_core import Structure
 
-from .settings import Settings
-from .worker import SystemWorker, stop_workers
+from service.settings import Settings
+from ..trainer import SystemWorker, stop_workers
 
 
 class TrainerHandle(Protocol):

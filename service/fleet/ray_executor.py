@@ -23,11 +23,11 @@ from typing import Any
 
 from siva_core import Structure
 
-from .errors import ApiError
+from service.errors import ApiError
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
-from .settings import Settings
-from .worker import base_snapshot
+from service.settings import Settings
+from ..trainer import base_snapshot
 
 log = logging.getLogger("siva.service.ray")
 

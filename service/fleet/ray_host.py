@@ -4,9 +4,9 @@ This module is what runs *inside* the actor process; service/ray_executor.py is 
 front's side.  It does not import ray: the front wraps :class:`TrainerHost` with
 ``ray.remote`` and the actor options (detached, named, ``max_restarts``).
 
-Inside, each system is an ordinary :class:`~service.worker.SystemWorker` (trainer thread,
+Inside, each system is an ordinary :class:`~service.trainer.SystemWorker` (trainer thread,
 refiner thread, checkpoints) working on the shared data dir through the narrow
-:class:`~service.store.TrainerStoreView`.  Its event-log calls go into an
+:class:`~service.storage.store.TrainerStoreView`.  Its event-log calls go into an
 :class:`EventQueue` that the front drains and writes to the MCAP log: the front stays the
 log's one writer, events keep their order, and an event is dropped from the queue only
 once the front acknowledged it (a poll lost in transit is sent again).
@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from .ray_placement import read_placement
-from .settings import Settings
-from .store import TrainerStoreView, UnknownSystem
+from service.settings import Settings
+from service.storage.store import TrainerStoreView, UnknownSystem
 
 log = logging.getLogger("siva.service.ray_host")
 
@@ -84,7 +84,7 @@ class TrainerHost:
     def __init__(self, host_id: str, settings: dict[str, Any], cpus: float) -> None:
         import torch
 
-        from .worker import SystemWorker
+        from ..trainer import SystemWorker
 
         logging.basicConfig(level=logging.INFO,
                             format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -164,7 +164,7 @@ class TrainerHost:
 
     def stop_all(self, timeout: float) -> list[str]:
         """Stop every worker (final checkpoints) within ``timeout``; the late ones' names."""
-        from .worker import stop_workers
+        from ..trainer import stop_workers
 
         with self._lock:
             workers = list(self.workers.values())

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .store import atomic_write
+from service.storage.store import atomic_write
 
 FILE = "ray-placement.json"
 

@@ -1,6 +1,6 @@
 """The drift report: the history of published estimates, modal quantities, and alarms.
 
-The alarms come from ``service.detector`` (a CUSUM on per-record estimates, see its
+The alarms come from ``service.monitoring.detector`` (a CUSUM on per-record estimates, see its
 docstring and docs/service.md); this module keeps the bounded history of published
 estimates that ``GET .../drift`` shows next to them, and the linear modal quantities.
 """

@@ -9,7 +9,7 @@ segment this process has just opened (its spec is already there):
 
 - every stored recording the log lacks is logged, from the stored bytes, as at upload;
 - when the checkpoint the trainer will resume from is no longer explained by the log
-  (:func:`service.replay.explains`: the data set logged last before its epoch is not the
+  (:func:`service.replay.run.explains`: the data set logged last before its epoch is not the
   one it trained on, a data-set event it counted is gone, the earlier logs are missing),
   its trainer state is logged as the *baseline* of a ``/siva/repair`` event: a replay of
   the folder starts there, so what the service does from now on replays bit for bit, and
@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from .checkpoints import matches
-from .mcap_log import TOPIC_DATASET, TOPIC_RECORDING, EventLog, read_events
-from .replay import explains
-from .store import Store
+from service.storage.checkpoints import matches
+from service.storage.eventlog.writer import TOPIC_DATASET, TOPIC_RECORDING, EventLog, read_events
+from .run import explains
+from service.storage.store import Store
 
 log = logging.getLogger("siva.service.reconcile")
 

@@ -40,11 +40,11 @@ import numpy as np
 
 from siva_core import Processing, Structure
 
-from ..checkpoints import checkpoint_state, matches
-from ..drift import EstimateHistory
-from ..estimate import estimate_view
+from service.storage.checkpoints import checkpoint_state, matches
+from service.monitoring.drift import EstimateHistory
+from .estimate import estimate_view
 from ..settings import Settings
-from ..store import Store, UnknownSystem
+from service.storage.store import Store, UnknownSystem
 from .anchoring import anchor_record, apply_anchor, build_anchor, processing_from
 from .data import DataFeed, SystemDeleted
 from .factory import base_snapshot, default_trainer

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from service.mcap_log import (TOPIC_RECORDING, TOPIC_REPAIR, _good_records, is_finished,
+from service.storage.eventlog.writer import (TOPIC_RECORDING, TOPIC_REPAIR, _good_records, is_finished,
                               read_events)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -167,8 +167,8 @@ def test_restart_after_log_damage_replays(base: Path, tmp_path: Path, damage: st
 def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path) -> None:
     """A system deleted and created again (another spec) whose log was then repaired: the
     replay starts at the repair's baseline and does not trip over the older incarnation."""
-    from service.mcap_log import EventLog
-    from service.replay import _plan, explains, log_files
+    from service.storage.eventlog.writer import EventLog
+    from service.replay.run import _plan, explains, log_files
 
     def spec(k: str) -> dict:
         return {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [

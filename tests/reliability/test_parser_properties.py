@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from service.limits import LimitError, check_structure, parse_spec_body
+from service.api.limits import LimitError, check_structure, parse_spec_body
 from service.settings import Settings
 from siva_core import RecordingError, SpecError, Structure
 
@@ -119,7 +119,7 @@ def _mutate(data: bytes, rnd: random.Random, n: int) -> bytes:
 @FAST
 @given(fmt=st.sampled_from(["csv", "json", "npz", "mcap"]), data=st.binary(max_size=400))
 def test_upload_parser_arbitrary_bytes(linear_structure, fmt, data):
-    from service.worker import parse_upload
+    from service.storage.uploads import parse_upload
 
     try:
         parse_upload(linear_structure, data, fmt, "u")
@@ -130,7 +130,7 @@ def test_upload_parser_arbitrary_bytes(linear_structure, fmt, data):
 @FAST
 @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 20))
 def test_upload_parser_mutated_csv(linear_structure, seed, n):
-    from service.worker import parse_upload
+    from service.storage.uploads import parse_upload
 
     try:
         parse_upload(linear_structure, _mutate(GOOD_CSV, random.Random(seed), n), "csv", "u")
@@ -142,7 +142,7 @@ def test_upload_parser_mutated_csv(linear_structure, seed, n):
 @pytest.fixture(scope="module")
 def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
     """A finished log of 12 recording events; returns its bytes and the event ids."""
-    from service.mcap_log import EventLog
+    from service.storage.eventlog.writer import EventLog
 
     d = tmp_path_factory.mktemp("log")
     log = EventLog(d)
@@ -156,7 +156,7 @@ def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
 
 
 def _read(tmp: Path, raw: bytes) -> list:
-    from service.mcap_log import read_events
+    from service.storage.eventlog.writer import read_events
 
     p = tmp / "x.mcap"
     p.write_bytes(raw)

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from service.ray_host import MAX_QUEUED_EVENTS, EventQueue
-from service.ray_placement import Placement, read_placement
+from service.fleet.ray_host import MAX_QUEUED_EVENTS, EventQueue
+from service.fleet.ray_placement import Placement, read_placement
 from service.settings import Settings
-from service.store import Store, TrainerStoreView, UnknownSystem
+from service.storage.store import Store, TrainerStoreView, UnknownSystem
 
 
 def test_placement_packs_systems_and_survives_a_restart(tmp_path: Path) -> None:

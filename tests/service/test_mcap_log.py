@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from service.fingerprint import platform_fingerprint
-from service.mcap_log import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC,
+from service.storage.eventlog.fingerprint import platform_fingerprint
+from service.storage.eventlog.writer import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC,
                               EventLog, RecordingEvent, SnapshotEvent, is_finished, read_events,
                               recover)
 
@@ -166,7 +166,7 @@ def test_garbage_tail_is_cut(tmp_path: Path) -> None:
 _KILL_SCRIPT = r"""
 import os, signal, sys
 sys.path.insert(0, {root!r})
-from service.mcap_log import EventLog
+from service.storage.eventlog.writer import EventLog
 ev = EventLog({data!r})
 ev.log_spec("sys1", {{"name": "m", "dofs": ["x"]}})
 ev.log_recording("sys1", "r1", "train", b"time,acc_x\n0,1\n", "csv", 0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 import time
 
-from service.store import RecordingMeta, ReplayBuffer
+from service.storage.store import RecordingMeta, ReplayBuffer
 
 
 def _meta(i: int, role: str) -> RecordingMeta:

@@ -6,10 +6,10 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
-from .errors import ApiError
-from .estimate import estimate_view
-from .export import EXPORTS, export_csv
-from .routes import _ERRORS, require_read_token, service_of
+from service.errors import ApiError
+from service.trainer.estimate import estimate_view
+from service.api.csv_export import EXPORTS, export_csv
+from .systems import _ERRORS, require_read_token, service_of
 
 router = APIRouter()
 

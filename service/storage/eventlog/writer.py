@@ -143,7 +143,7 @@ class AnchorEvent(BaseModel):
 
 
 try:  # the HTTP API's own model, so the log's schema is the one /openapi.json documents
-    from .schemas import Estimate as _Estimate
+    from service.api.schemas import Estimate as _Estimate
 except ImportError:  # pragma: no cover - schemas.py is part of the service
     class _Estimate(BaseModel):  # type: ignore[no-redef]
         model_config = ConfigDict(extra="allow")
