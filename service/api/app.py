@@ -25,35 +25,42 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from siva_core import RecordingError, SpecError, Structure
 from siva_core import RecordingTooLarge
 
-from service.errors import ApiError, UploadTooLarge
+from ..errors import ApiError, UploadTooLarge
 from .routes.systems import router
 from .limits import LimitError, check_sampling_rate, check_structure
 from .security import SecurityMiddleware, allowed_hosts
-from service.settings import Settings
-from service.storage.store import (DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem)
-from service.storage.uploads import parse_upload
-from service.fleet.executor import TrainerHandle, make_executor
+from ..settings import Settings
+from ..storage.store import DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem
+from ..storage.uploads import parse_upload
+from ..fleet.executor import TrainerHandle, make_executor
 
 log = logging.getLogger("siva.service")
 
 
 # --------------------------------------------------------------------------- event log hook
 class _NoEvents:
-    """Stand-in when service.mcap_log is unavailable: the log is optional."""
+    """Stand-in when the event log (service/storage/eventlog) is unavailable: it is optional."""
 
     def log_spec(self, *a: Any, **k: Any) -> None: ...
     def log_recording(self, *a: Any, **k: Any) -> None: ...
     def rotate(self, *a: Any, **k: Any) -> None: ...
     def log_dataset(self, *a: Any, **k: Any) -> None: ...
     def log_snapshot(self, *a: Any, **k: Any) -> None: ...
-    def remove(self, *a: Any, **k: Any) -> dict[str, Any]:
-        return {"action": "none", "files": 0}
+    def remove(self, *a: Any, **k: Any) -> "_NothingRemoved":
+        return _NothingRemoved()
     def close(self) -> None: ...
+
+
+class _NothingRemoved:
+    """What removing the logs of a service without an event log did: nothing."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"action": "none", "files": 0}
 
 
 def _make_event_log(settings: Settings) -> Any:
     try:
-        from service.storage.eventlog.writer import EventLog
+        from ..storage.eventlog import EventLog
     except ImportError as exc:
         log.warning("event log disabled (service.mcap_log unavailable: %s)", exc)
         return _NoEvents()
@@ -188,7 +195,7 @@ class SivaService:
         """Bring the event log of ``name`` in line with the store before its trainer
         starts (service/reconcile.py); a failure is logged, never fatal: the log is an
         audit trail, the store keeps serving."""
-        from service.replay.reconcile import reconcile
+        from ..replay.reconcile import reconcile
 
         if not hasattr(self.events, "folder"):  # the event log is disabled
             return
@@ -279,7 +286,7 @@ class SivaService:
         self.executor.removed(name)
         self._dead.pop(name, None)
         try:
-            logs = self.events.remove(name, archive=archive_logs)
+            logs = self.events.remove(name, archive=archive_logs).to_json()
         except OSError as exc:  # the system is gone; its logs stay, and the answer says so
             log.error("%s: cannot remove the event logs: %s", name, exc)
             logs = {"action": "kept", "files": None,

@@ -24,9 +24,9 @@ from siva_core import Recording, RecordingError
 
 from .routes.systems import ERROR_RESPONSES, require_read_token
 from .security import csp_with_scripts
-from service.monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
-from service.storage.store import UnknownSystem
-from service.timefmt import iso_utc
+from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
+from ..storage.store import UnknownSystem
+from ..timefmt import iso_utc
 
 log = logging.getLogger("siva.service.dashboard")
 
@@ -62,7 +62,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
     is one, else the headline means): measured vs simulated displacement [mm] and residual,
     Fourier spectra, CWT.  ``available: false`` with a ``reason`` while there is nothing to
     show yet.  Computed in a thread and cached per data version (record id + parameters)."""
-    from service.errors import ApiError
+    from ..errors import ApiError
 
     svc = request.app.state.service
     w = svc.worker(name)  # 404 for an unknown system

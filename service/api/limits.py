@@ -16,7 +16,7 @@ import math
 import tomllib
 from typing import Any
 
-from service.settings import Settings
+from ..settings import Settings
 
 #: integers with more digits than this are refused while parsing (before any conversion)
 MAX_INT_DIGITS = 20

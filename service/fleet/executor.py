@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 from siva_core import Structure
 
-from service.settings import Settings
+from ..settings import Settings
 from ..trainer import SystemWorker, stop_workers
 
 

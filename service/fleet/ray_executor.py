@@ -23,10 +23,10 @@ from typing import Any
 
 from siva_core import Structure
 
-from service.errors import ApiError
+from ..errors import ApiError
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
-from service.settings import Settings
+from ..settings import Settings
 from ..trainer import base_snapshot
 
 log = logging.getLogger("siva.service.ray")

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from .ray_placement import read_placement
-from service.settings import Settings
-from service.storage.store import TrainerStoreView, UnknownSystem
+from ..settings import Settings
+from ..storage.store import TrainerStoreView, UnknownSystem
 
 log = logging.getLogger("siva.service.ray_host")
 

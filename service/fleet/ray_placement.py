@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from service.storage.store import atomic_write
+from ..storage.store import atomic_write
 
 FILE = "ray-placement.json"
 

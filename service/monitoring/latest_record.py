@@ -23,7 +23,7 @@ import numpy as np
 
 from siva_core import Processing, Recording, Structure
 
-from service.timefmt import iso_utc
+from ..timefmt import iso_utc
 
 #: series longer than this are decimated (by a stride) before they are sent to a browser
 MAX_POINTS = 1500

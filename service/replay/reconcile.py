@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from service.storage.checkpoints import matches
-from service.storage.eventlog.writer import TOPIC_DATASET, TOPIC_RECORDING, EventLog, read_events
+from ..storage.checkpoints import matches
+from ..storage.eventlog import TOPIC_DATASET, TOPIC_RECORDING, EventLog, read_events
 from .run import explains
-from service.storage.store import Store
+from ..storage.store import Store
 
 log = logging.getLogger("siva.service.reconcile")
 

@@ -34,12 +34,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from service.storage.eventlog.writer import (PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING,
-                       TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, AnchorEvent, LogEvent,
-                       RecordingEvent, RepairEvent, SnapshotEvent, SpecEvent, read_events,
-                       read_metadata)
-from .verdict import (REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison,
-                             summary_line)
+from ..storage.eventlog import (PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING,
+                                 TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, AnchorEvent, LogEvent,
+                                 RecordingEvent, RepairEvent, SnapshotEvent, SpecEvent, read_events,
+                                 read_metadata)
+from .verdict import REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison, summary_line
 
 __all__ = ["REPRODUCED_TOLERANCE_IN_STD", "ReplayError", "explains", "log_files", "replay",
            "summary_line", "write_replay"]
@@ -252,7 +251,7 @@ def _tuples(v: Any) -> Any:
 
 
 def _service_settings(spec: SpecEvent) -> Any:
-    from service.settings import Settings
+    from ..settings import Settings
 
     s = spec.settings
     kw: dict[str, Any] = {}
@@ -269,7 +268,7 @@ class _Replayer:
     def __init__(self, plan: _Plan, trainer_factory: Any = None) -> None:
         from siva_core import Structure
 
-        from service.trainer import default_trainer
+        from ..trainer import default_trainer
 
         self.plan = plan
         self.structure = Structure.from_dict(plan.spec.spec)
@@ -297,7 +296,7 @@ class _Replayer:
         does, on all selected records) applied to each record."""
         from siva_core import Processing
 
-        from service.storage.uploads import processing_for
+        from ..storage.uploads import processing_for
 
         train, val = ds.train, ds.validation
         recs = [self.recording(i) for i in train + val]
@@ -316,7 +315,7 @@ class _Replayer:
         """The live trainer's output-error anchor, recomputed from the logged records."""
         import numpy as np
 
-        from service.trainer.anchoring import linearize_anchor, processing_from
+        from ..trainer.anchoring import linearize_anchor, processing_from
 
         if ev.resume and getattr(trainer, "oe", None) is not None:
             return  # restored from a checkpoint: this replay's trainer never lost it
@@ -433,8 +432,8 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     parameter's std, 0 when identical - and the ``verdict`` identical / reproduced /
     differs, with the platform comparison that says which one was to be expected).
     """
-    from service.trainer.estimate import estimate_view, jsonable
-    from service.trainer.readout import read_ensemble
+    from ..trainer.estimate import estimate_view, jsonable
+    from ..trainer.readout import read_ensemble
 
     files = log_files(path)
     plan = _plan(files)

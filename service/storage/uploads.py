@@ -11,7 +11,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from siva_core import (Processing, Recording, RecordingError, Structure, check_rates,
-                       check_recording, PreflightError)
+                        check_recording, PreflightError)
 
 
 def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:

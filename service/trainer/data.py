@@ -14,8 +14,8 @@ from typing import Any
 from siva_core import Processing, Recording, RecordingError, States, Structure
 
 from ..settings import Settings
-from service.storage.store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
-from service.storage.uploads import processing_for
+from ..storage.store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
+from ..storage.uploads import processing_for
 from .types import DataSet
 
 log = logging.getLogger("siva.service.worker")

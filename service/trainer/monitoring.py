@@ -14,11 +14,11 @@ import numpy as np
 
 from siva_core import Processing, Recording, RecordingError, Structure
 
-from service.monitoring.detector import DetectorSettings
+from ..monitoring.detector import DetectorSettings
 from .estimate import jsonable
-from service.monitoring.monitor import RecordMonitor
+from ..monitoring.monitor import RecordMonitor
 from ..settings import Settings
-from service.storage.store import Store, UnknownSystem
+from ..storage.store import Store, UnknownSystem
 from .refiner import REFINE_LOCK
 
 

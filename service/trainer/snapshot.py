@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 from siva_core import Processing, Structure
 
-from service.monitoring.drift import modal_quantities
+from ..monitoring.drift import modal_quantities
 from .estimate import headline, jsonable
 from .readout import EnsembleReadout
 from .types import Anchor, Best, DataSet, Verdict

@@ -40,11 +40,11 @@ import numpy as np
 
 from siva_core import Processing, Structure
 
-from service.storage.checkpoints import checkpoint_state, matches
-from service.monitoring.drift import EstimateHistory
+from ..storage.checkpoints import checkpoint_state, matches
+from ..monitoring.drift import EstimateHistory
 from .estimate import estimate_view
 from ..settings import Settings
-from service.storage.store import Store, UnknownSystem
+from ..storage.store import Store, UnknownSystem
 from .anchoring import anchor_record, apply_anchor, build_anchor, processing_from
 from .data import DataFeed, SystemDeleted
 from .factory import base_snapshot, default_trainer
@@ -388,7 +388,8 @@ class SystemWorker:
         position = getattr(self.events, "position", None)
         if position is not None:  # which log explains this state (service/reconcile.py)
             try:
-                extra["log"] = position(self.name)
+                at = position(self.name)
+                extra["log"] = None if at is None else {"file": at.file, "datasets": at.datasets}
             except Exception:  # noqa: BLE001 - an audit aid, never a reason not to checkpoint
                 pass
         state = checkpoint_state(self.structure.spec, self.trainer, self.history,

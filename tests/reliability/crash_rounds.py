@@ -147,7 +147,7 @@ def run(rounds: int, clients: int, data_dir: Path, *, seed: int = 1,
         max_kill_after_s: float = 5.0, replay_prefixes: bool = True,
         env: dict[str, str] | None = None) -> dict[str, Any]:
     """The experiment; returns the figures (see the module docstring)."""
-    from service.storage.eventlog.writer import read_events
+    from service.storage.eventlog import read_events
     from service.replay.run import log_files, replay
 
     Server = _server_class()

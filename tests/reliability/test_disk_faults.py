@@ -83,7 +83,7 @@ def test_disk_full_gives_507_and_everything_recovers(make_server, tmpfs, oscilla
         assert c.put("/v1/systems/other", json=linear).status_code == 201
     srv.stop()
     # the log holds every acknowledged recording, readable past the failed writes
-    from service.storage.eventlog.writer import read_events
+    from service.storage.eventlog import read_events
 
     logged = {e.event.id for p in (disk.path / "logs" / "osc").glob("*.mcap")
               for e in read_events(p) if e.topic == "/siva/recording"}

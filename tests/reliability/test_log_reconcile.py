@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from service.storage.eventlog.writer import (TOPIC_RECORDING, TOPIC_REPAIR, _good_records, is_finished,
-                              read_events)
+from service.storage.eventlog import TOPIC_RECORDING, TOPIC_REPAIR, is_finished, read_events
+from service.storage.eventlog.reader import _good_records
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
@@ -167,7 +167,7 @@ def test_restart_after_log_damage_replays(base: Path, tmp_path: Path, damage: st
 def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path) -> None:
     """A system deleted and created again (another spec) whose log was then repaired: the
     replay starts at the repair's baseline and does not trip over the older incarnation."""
-    from service.storage.eventlog.writer import EventLog
+    from service.storage.eventlog import EventLog
     from service.replay.run import _plan, explains, log_files
 
     def spec(k: str) -> dict:

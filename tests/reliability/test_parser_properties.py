@@ -142,7 +142,7 @@ def test_upload_parser_mutated_csv(linear_structure, seed, n):
 @pytest.fixture(scope="module")
 def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
     """A finished log of 12 recording events; returns its bytes and the event ids."""
-    from service.storage.eventlog.writer import EventLog
+    from service.storage.eventlog import EventLog
 
     d = tmp_path_factory.mktemp("log")
     log = EventLog(d)
@@ -156,7 +156,7 @@ def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
 
 
 def _read(tmp: Path, raw: bytes) -> list:
-    from service.storage.eventlog.writer import read_events
+    from service.storage.eventlog import read_events
 
     p = tmp / "x.mcap"
     p.write_bytes(raw)

@@ -3,7 +3,7 @@ data-set changes logged after it describe training nobody saw (before: the repla
 past the snapshot and differed from the live estimate by 13-45 standard deviations)."""
 from __future__ import annotations
 
-from service.storage.eventlog.writer import EventLog
+from service.storage.eventlog import EventLog
 from service.replay.run import _plan, log_files
 
 SPEC = {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [

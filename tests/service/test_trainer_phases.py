@@ -32,7 +32,7 @@ from service.trainer.validation import validation_view
 # --------------------------------------------------------------------------- live
 @pytest.mark.slow  # ~40 s on an idle 2-core machine (both phases, validation, a replay)
 def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_path: Path):
-    from service.storage.eventlog.writer import TOPIC_ANCHOR, read_events
+    from service.storage.eventlog import TOPIC_ANCHOR, read_events
     from service.replay.run import replay
 
     srv = make_server(env={"SIVA_SNAPSHOT_EVERY": "5", "SIVA_IDLE_AFTER_EPOCHS": "40"},

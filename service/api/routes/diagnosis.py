@@ -29,8 +29,8 @@ from fastapi.responses import HTMLResponse, JSONResponse
 
 from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
-from service.errors import ApiError
-from service.api.schemas import ErrorDetail
+from ...errors import ApiError
+from ..schemas import ErrorDetail
 from .systems import errors, require_read_token, require_write_rights, service_of
 
 log = logging.getLogger("siva.service.diagnosis")

@@ -6,9 +6,9 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
-from service.errors import ApiError
-from service.trainer.estimate import estimate_view
-from service.api.csv_export import EXPORTS, export_csv
+from ...errors import ApiError
+from ...trainer.estimate import estimate_view
+from ..csv_export import EXPORTS, export_csv
 from .systems import _ERRORS, require_read_token, service_of
 
 router = APIRouter()

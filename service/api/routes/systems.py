@@ -17,13 +17,13 @@ from starlette.datastructures import UploadFile
 
 from siva_core import media_types, parse_pairs, resolve_format
 
-from service.errors import ApiError, UploadTooLarge
-from service.api.limits import LimitError, parse_spec_body
-from service.api.security import cross_site
-from service.api.schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
-                      RecordingList, SystemAck, SystemList, SystemSpec)
-from service.storage.store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
-from service.trainer.estimate import estimate_view
+from ...errors import ApiError, UploadTooLarge
+from ..limits import LimitError, parse_spec_body
+from ..security import cross_site
+from ..schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
+                       RecordingList, SystemAck, SystemList, SystemSpec)
+from ...storage.store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
+from ...trainer.estimate import estimate_view
 
 
 router = APIRouter()

@@ -1,36 +1,11 @@
-"""Event logs of the service: one MCAP file per system per process start.
-
-Why MCAP: the log is both the audit trail of a running identification (what arrived, when,
-and what the service estimated) and the input of ``siva replay``, so it must be a standard,
-self-describing container that outside tools (``mcap info``, Foxglove) open.
-
-Layout: ``<data>/logs/<system>/<UTC start time>-<pid>.mcap``.  Topics (message encoding
-``json``, schema encoding ``jsonschema``, schemas generated from the pydantic models below):
-
-- ``/siva/spec``       :class:`SpecEvent` - the model spec (+ trainer settings, e.g. seed)
-- ``/siva/recording``  :class:`RecordingEvent` - one accepted recording: the uploaded bytes
-  exactly as received (base64), their format, role, and the training epoch at arrival
-- ``/siva/dataset``    :class:`DatasetEvent` - (optional) the moment the trainer's data set
-  changed: the epoch and the recording ids in use; replay prefers it over arrival epochs
-- ``/siva/anchor``     :class:`AnchorEvent` - the trainer entered (or re-anchored) the
-  output-error phase after ``epoch`` epochs: the anchor theta, the records and chain it was
-  linearised on, the bootstrap replicate count and seed (replay recomputes it exactly)
-- ``/siva/snapshot``   :class:`SnapshotEvent` - an estimate as served by GET .../estimate
-- ``/siva/repair``     :class:`RepairEvent` - start-up found the log behind the store and
-  repaired it (service/reconcile.py): what was missing, and - when the log can no longer
-  explain the checkpoint training resumes from - that trainer state, so replay starts there
-
-Recordings are logged as the original bytes (not re-encoded float arrays) so that a replay
-parses exactly what the live service parsed - bit-identical states - and the file stays
-compact: every message is its own zstd-compressed chunk, which packs the base64 text back
-to below the size of the raw CSV.
+"""Writing the event log: one MCAP file per system per process start, durably.
 
 Crash safety: every message is written as one complete chunk, then the file is flushed and
-fsync'ed, so a process killed mid-write loses at most the message being written.  A file
-without footer (the process died) is still readable (:func:`read_events` keeps every
-complete record, resynchronising after a torn one) and :func:`recover` rewrites it as a
-finished file.  A write that fails (disk full, read-only) abandons the file - its tail may
-be torn - and the next event opens a new file that starts with the spec again.
+fsync'ed, so a process killed mid-write loses at most the message being written.  A write
+that fails (disk full, read-only) abandons the file - its tail may be torn - and the next
+event opens a new file that starts with the spec again.  The format (topics, models) is in
+``channels.py``; reading a (possibly torn) file in ``reader.py``; finishing one in
+``recovery.py``.
 
 Write-ahead: the service logs a recording *before* the store commits it and before the
 HTTP 202, and a failed log write fails the upload (507), so every acknowledged recording
@@ -40,177 +15,56 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import io
 import json
 import logging
 import os
 import shutil
-import struct
 import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterator, Literal, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
-from mcap.exceptions import EndOfFile, McapError
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import MAGIC_SIZE, StreamReader
+from mcap.exceptions import McapError
 from mcap.writer import CompressionType, Writer
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel
 
-from siva_core import MCAP_MAGIC
-
+from .channels import (FORMAT_VERSION, PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET,
+                        TOPIC_RECORDING, TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, TOPICS,
+                        AnchorEvent, DatasetEvent, RecordingEvent, RepairEvent, SnapshotEvent,
+                        SpecEvent, schema_bytes)
 from .fingerprint import platform_fingerprint
+from .reader import is_finished
+from .recovery import recover
 
 log = logging.getLogger("siva.mcap_log")
 
-FORMAT_VERSION = "siva-log/1"
-TOPIC_SPEC = "/siva/spec"
-TOPIC_RECORDING = "/siva/recording"
-TOPIC_DATASET = "/siva/dataset"
-TOPIC_SNAPSHOT = "/siva/snapshot"
-TOPIC_ANCHOR = "/siva/anchor"
-TOPIC_REPAIR = "/siva/repair"
-PLATFORM_METADATA = "siva.platform"
-MAGIC = MCAP_MAGIC
-_FOOTER_OPCODE = 0x02
-_FOOTER_RECORD = 1 + 8 + 20  # opcode + length + (summary_start, summary_offset_start, crc)
+
+@dataclass(frozen=True)
+class LogRemoval:
+    """What :meth:`EventLog.remove` did with a system's log folder (``archive``: the folder,
+    relative to the data directory, when archived)."""
+
+    action: str  # deleted | archived | none
+    files: int
+    archive: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"action": self.action, "files": self.files}
+        if self.archive is not None:
+            out["archive"] = self.archive
+        return out
 
 
-# ------------------------------------------------------------------------ message models
-class SpecEvent(BaseModel):
-    """The model spec of a system, as registered (CONTRACT.md structure)."""
+@dataclass(frozen=True)
+class LogPosition:
+    """Where a system's log stands: its current file and how many data-set events it holds."""
 
-    system: str
-    spec: dict[str, Any] = Field(description="model spec, the JSON form of the TOML file")
-    settings: dict[str, Any] = Field(default_factory=dict,
-                                     description="trainer settings needed to replay (seed, preset)")
-    wall_time: float = Field(description="UNIX time [s] when logged")
+    file: str
+    datasets: int
 
 
-class RecordingEvent(BaseModel):
-    """One accepted recording, byte for byte as uploaded."""
-
-    system: str
-    id: str
-    role: Literal["train", "validation"]
-    format: str = Field(description="csv, json, npz or mcap: how to parse `data`")
-    epoch: int = Field(ge=0, description="training epochs completed when it arrived")
-    name: str | None = None
-    size: int = Field(ge=0, description="bytes of the decoded payload")
-    sha256: str
-    data: str = Field(description="the uploaded bytes, base64 (RFC 4648)")
-    wall_time: float
-    channel_map: dict[str, str] | None = Field(
-        None, description="the upload's ?map= channel renames (stored name -> column)")
-    units: dict[str, str] | None = Field(None, description="the upload's ?unit= declarations")
-
-    def payload(self) -> bytes:
-        """The uploaded bytes; checked against the logged hash so corruption is loud."""
-        raw = base64.b64decode(self.data)
-        if hashlib.sha256(raw).hexdigest() != self.sha256:
-            raise ValueError(f"recording {self.id}: payload does not match its sha256")
-        return raw
-
-
-class DatasetEvent(BaseModel):
-    """The trainer's data set changed before training epoch ``epoch + 1``."""
-
-    system: str
-    epoch: int = Field(ge=0, description="epochs completed when the new data set took effect")
-    train: list[str]
-    validation: list[str]
-    processing: dict[str, Any] | None = Field(
-        None, description="the processing chain's settings (siva_core Processing fields)")
-    wall_time: float
-
-
-class AnchorEvent(BaseModel):
-    """The output-error phase was anchored (linearised) before training epoch ``epoch + 1``."""
-
-    system: str
-    epoch: int = Field(ge=0, description="epochs completed when the anchor took effect")
-    theta: list[float] = Field(description="anchor parameters, in the model's free order")
-    train: list[str] = Field(description="records the output error was linearised on")
-    validation: list[str] = Field(description="records the discriminator judges")
-    processing: dict[str, Any] | None = None
-    source: str = Field(description="best (the first recommend_best) | headline | given")
-    n_noise: int = Field(ge=0, description="parametric-bootstrap replicates")
-    seed: int
-    resume: bool = Field(False, description="restored from a checkpoint (no state reset)")
-    wall_time: float
-
-
-try:  # the HTTP API's own model, so the log's schema is the one /openapi.json documents
-    from service.api.schemas import Estimate as _Estimate
-except ImportError:  # pragma: no cover - schemas.py is part of the service
-    class _Estimate(BaseModel):  # type: ignore[no-redef]
-        model_config = ConfigDict(extra="allow")
-        parameters: dict[str, dict[str, Any]]
-        discriminator: dict[str, Any]
-        epoch: int
-        converged: bool
-        n_recordings: dict[str, int]
-
-
-class SnapshotEvent(BaseModel):
-    """An estimate as served by GET /v1/systems/{name}/estimate at ``epoch``."""
-
-    system: str
-    epoch: int = Field(ge=0)
-    estimate: _Estimate
-    wall_time: float
-
-    def estimate_dict(self) -> dict[str, Any]:
-        """The logged estimate as plain JSON types (extra keys included)."""
-        return self.estimate.model_dump(mode="json")
-
-
-class RepairEvent(BaseModel):
-    """Start-up found this system's log behind the store (the truth) and repaired it.
-
-    ``recordings``: stored recordings the log lacked, logged just before this event.
-    ``baseline_*``: when the remaining log cannot reproduce the checkpoint the trainer
-    resumes from (its history was lost), that trainer state (``torch.save`` bytes, base64)
-    at ``baseline_epoch``: a replay starts from it instead of from scratch."""
-
-    system: str
-    reasons: list[str] = Field(description="what was found missing or inconsistent")
-    recordings: list[str] = Field(default_factory=list,
-                                  description="ids of the recordings logged by this repair")
-    baseline_epoch: int | None = Field(None, ge=0)
-    baseline_train: list[str] = Field(default_factory=list)
-    baseline_validation: list[str] = Field(default_factory=list)
-    baseline_sha256: str | None = None
-    baseline_state: str | None = Field(None, description="torch.save of the trainer state, base64")
-    wall_time: float
-
-    def state_bytes(self) -> bytes | None:
-        """The baseline trainer state; checked against its hash so corruption is loud."""
-        if self.baseline_state is None:
-            return None
-        raw = base64.b64decode(self.baseline_state)
-        if hashlib.sha256(raw).hexdigest() != self.baseline_sha256:
-            raise ValueError(f"repair of {self.system}: baseline state does not match its sha256")
-        return raw
-
-
-_TOPICS: dict[str, type[BaseModel]] = {
-    TOPIC_SPEC: SpecEvent,
-    TOPIC_RECORDING: RecordingEvent,
-    TOPIC_DATASET: DatasetEvent,
-    TOPIC_SNAPSHOT: SnapshotEvent,
-    TOPIC_ANCHOR: AnchorEvent,
-    TOPIC_REPAIR: RepairEvent,
-}
-
-
-def _schema_bytes(model: type[BaseModel]) -> bytes:
-    return json.dumps(model.model_json_schema(), separators=(",", ":")).encode()
-
-
-# ------------------------------------------------------------------------ writing
 class _SystemLog:
     """One open MCAP file: writer, channel ids, and the durability step after each message."""
 
@@ -240,9 +94,9 @@ class _SystemLog:
 
     def _channel(self, topic: str) -> int:
         if topic not in self._channels:
-            model = _TOPICS[topic]
+            model = TOPICS[topic]
             sid = self._writer.register_schema(f"siva.{model.__name__}", "jsonschema",
-                                               _schema_bytes(model))
+                                               schema_bytes(model))
             self._channels[topic] = self._writer.register_channel(topic, "json", sid)
             self._sequence[topic] = 0
         return self._channels[topic]
@@ -401,13 +255,12 @@ class EventLog:
                            wall_time=time.time())
         self._write(system, TOPIC_SNAPSHOT, ev)
 
-    def remove(self, system: str, *, archive: bool = False) -> dict[str, Any]:
+    def remove(self, system: str, *, archive: bool = False) -> LogRemoval:
         """Finish the system's open file, then delete its log folder or, with ``archive``,
         move it to ``<data>/archive/logs/<system>-<UTC time>/`` (outside ``logs/``: no
         longer recovered at start-up, nor stitched into a new system of the same name).
 
-        Returns what was done: ``{"action": "deleted" | "archived" | "none", "files": n}``
-        (+ ``"archive"``, the folder relative to the data directory).  Raises OSError when
+        Returns what was done (:class:`LogRemoval`).  Raises OSError when
         the disk refuses (the caller reports it; the files are then still there)."""
         with self._lock:
             sl = self._logs.pop(system, None)
@@ -416,19 +269,18 @@ class EventLog:
             _finish(sl)
         folder = self.root / _safe(system)
         if not folder.is_dir():
-            return {"action": "none", "files": 0}
+            return LogRemoval("none", 0)
         files = len(list(folder.glob("*.mcap")))
         if not archive:
             shutil.rmtree(folder)
-            return {"action": "deleted", "files": files}
+            return LogRemoval("deleted", files)
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         dest = self.root.parent / "archive" / "logs" / f"{_safe(system)}-{stamp}"
         while dest.exists():
             dest = dest.with_name(dest.name + "x")
         dest.parent.mkdir(parents=True, exist_ok=True)
         os.replace(folder, dest)
-        return {"action": "archived", "files": files,
-                "archive": str(dest.relative_to(self.root.parent))}
+        return LogRemoval("archived", files, str(dest.relative_to(self.root.parent)))
 
     def log_repair(self, system: str, reasons: Sequence[str], recordings: Sequence[str] = (),
                    baseline: Mapping[str, Any] | None = None) -> None:
@@ -446,7 +298,7 @@ class EventLog:
                          recordings=[str(r) for r in recordings], wall_time=time.time(), **kw)
         self._write(system, TOPIC_REPAIR, ev)
 
-    def position(self, system: str) -> dict[str, Any] | None:
+    def position(self, system: str) -> LogPosition | None:
         """Where the log of ``system`` stands: its current file and how many data-set
         events that file holds (a checkpoint keeps it, so start-up can tell whether the
         log still explains the checkpoint)."""
@@ -454,7 +306,7 @@ class EventLog:
             sl = self._logs.get(system)
             if sl is None:
                 return None
-            return {"file": sl.path.name, "datasets": sl.count(TOPIC_DATASET)}
+            return LogPosition(sl.path.name, sl.count(TOPIC_DATASET))
 
     def close(self) -> None:
         """Finish every file (summary + footer).  Idempotent."""
@@ -557,212 +409,3 @@ def _jsonable(x: Any) -> Any:
     if hasattr(x, "model_dump"):
         return x.model_dump()
     raise TypeError(f"not JSON serialisable: {type(x).__name__}")
-
-
-# ------------------------------------------------------------------------ reading
-@dataclass
-class LogEvent:
-    """One decoded message: topic, log time [ns] and the typed event."""
-
-    topic: str
-    log_time: int
-    event: SpecEvent | RecordingEvent | DatasetEvent | SnapshotEvent | RepairEvent
-
-
-def is_finished(path: str | Path) -> bool:
-    """True when the file ends with a footer and the closing magic (a clean ``close()``)."""
-    with open(path, "rb") as fh:
-        fh.seek(0, io.SEEK_END)
-        size = fh.tell()
-        if size < 2 * MAGIC_SIZE + _FOOTER_RECORD:
-            return False
-        fh.seek(size - MAGIC_SIZE - _FOOTER_RECORD)
-        tail = fh.read()
-    return tail[-MAGIC_SIZE:] == MAGIC and tail[0] == _FOOTER_OPCODE
-
-
-def _record_ok(raw: bytes, pos: int, end: int) -> bool:
-    """Whether ``raw[pos:end]`` is one record mcap's stream reader parses (CRCs checked)."""
-    try:
-        for _ in StreamReader(io.BytesIO(raw[pos:end]), skip_magic=True,
-                              validate_crcs=True).records:
-            pass
-    except EndOfFile:
-        pass
-    except Exception:  # noqa: BLE001 - any unparseable record is not a good one
-        return False
-    return True
-
-
-def _record_end(raw: bytes, pos: int) -> int | None:
-    """End of the record framed at ``pos`` if it fits in the file (opcode 0: no record)."""
-    if pos + 9 > len(raw) or raw[pos] == 0:
-        return None
-    (length,) = struct.unpack_from("<Q", raw, pos + 1)
-    end = pos + 9 + length
-    return end if end <= len(raw) else None
-
-
-def _good_records(raw: bytes) -> list[tuple[int, int]]:
-    """Byte ranges of the complete, parseable records (after the magic), in file order.
-
-    Record framing is checked by hand (opcode + length must fit in the file; opcode 0 - what
-    a crash leaves in pre-allocated space - is no record) and each record is then parsed
-    by mcap's own stream reader, with CRC checks.  A torn or corrupt record does not end
-    the file: the scan resynchronises at the next chunk that parses with a valid CRC, so
-    events written after a torn chunk stay readable.
-    """
-    if len(raw) < MAGIC_SIZE and MAGIC.startswith(raw):
-        return []  # died while writing the magic: an empty log
-    if raw[:MAGIC_SIZE] != MAGIC:
-        raise McapError("not an MCAP file (bad magic)")
-    good: list[tuple[int, int]] = []
-    pos = MAGIC_SIZE
-    n = len(raw)
-    resynced = False  # after damage only CRC-checked chunks are trusted
-    while pos + 9 <= n:
-        if resynced and raw[pos] != _CHUNK_OPCODE:
-            pos = _resync(raw, pos)
-            continue
-        end = _record_end(raw, pos)
-        if end is not None and _record_ok(raw, pos, end):
-            good.append((pos, end))
-            if raw[pos] == _FOOTER_OPCODE:
-                break
-            pos = end
-            continue
-        resynced = True
-        pos = _resync(raw, pos + 1)
-    return good
-
-
-_CHUNK_OPCODE = 0x06
-
-
-def _resync(raw: bytes, start: int) -> int:
-    """The next position at or after ``start`` where a complete chunk parses, else EOF."""
-    pos = raw.find(bytes([_CHUNK_OPCODE]), start)
-    while pos != -1:
-        end = _record_end(raw, pos)
-        if end is not None and _record_ok(raw, pos, end):
-            return pos
-        pos = raw.find(bytes([_CHUNK_OPCODE]), pos + 1)
-    return len(raw)
-
-
-def _good_bytes(raw: bytes) -> tuple[list[Any], int]:
-    """The records of the good ranges, parsed range by range (a range that parses alone
-    but not in sequence is dropped, not fatal), and how many bytes were kept."""
-    records: list[Any] = []
-    kept = MAGIC_SIZE
-    for a, b in _good_records(raw):
-        recs: list[Any] = []
-        try:
-            for rec in StreamReader(io.BytesIO(raw[a:b]), skip_magic=True,
-                                    validate_crcs=True).records:
-                recs.append(rec)
-        except EndOfFile:
-            pass
-        except Exception:  # noqa: BLE001 - damaged: skip this record only
-            continue
-        records.extend(recs)
-        kept += b - a
-    return records, kept
-
-
-def iter_raw(path: str | Path) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    """(schema, channel, message) in file order; tolerant of a missing footer."""
-    records, _kept = _good_bytes(Path(path).read_bytes())
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    for rec in records:
-        if isinstance(rec, Schema):
-            schemas[rec.id] = rec
-        elif isinstance(rec, Channel):
-            channels[rec.id] = rec
-        elif isinstance(rec, Message) and rec.channel_id in channels:
-            ch = channels[rec.channel_id]
-            yield schemas.get(ch.schema_id), ch, rec
-
-
-def read_events(path: str | Path) -> list[LogEvent]:
-    """All siva events of a log in the order they were written (unknown topics skipped)."""
-    out: list[LogEvent] = []
-    for _schema, ch, msg in iter_raw(path):
-        model = _TOPICS.get(ch.topic)
-        if model is None:
-            continue
-        out.append(LogEvent(ch.topic, msg.log_time, model.model_validate_json(msg.data)))
-    return out
-
-
-def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
-    """The metadata records of a log by name (the first of each name; footer optional):
-    ``siva`` (format, system, settings), ``siva.platform`` (the fingerprint, logs written
-    since it was added), ``siva.recovery`` / ``siva.repair`` (what start-up fixed)."""
-    records, _kept = _good_bytes(Path(path).read_bytes())
-    out: dict[str, dict[str, str]] = {}
-    for rec in records:
-        if isinstance(rec, Metadata):
-            out.setdefault(rec.name, dict(rec.metadata))
-    return out
-
-
-# ------------------------------------------------------------------------ recovery
-def recover(path: str | Path, *, keep_partial: bool = True) -> Path:
-    """Finish an unfinished log: keep every complete record, add summary and footer.
-
-    The original is kept next to it as ``<name>.partial`` unless ``keep_partial`` is false
-    (the service's start-up: what was kept is noted in the ``siva.recovery`` metadata);
-    the returned path (the original name) is a finished MCAP file.  A file that is already
-    finished is returned unchanged.
-    """
-    path = Path(path)
-    if is_finished(path):
-        return path
-    raw = path.read_bytes()
-    records, end = _good_bytes(raw)
-    tmp = path.with_name(path.name + ".recovering")
-    with open(tmp, "wb") as fh:
-        w = Writer(fh, chunk_size=1, compression=CompressionType.ZSTD)
-        w.start(profile="", library=f"siva ({FORMAT_VERSION}, recovered)")
-        schema_ids: dict[int, int] = {}
-        channel_ids: dict[int, int] = {}
-        schemas: dict[int, Schema] = {}
-        for rec in records:
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Channel):
-                sid = 0
-                if rec.schema_id:
-                    if rec.schema_id not in schema_ids:
-                        s = schemas[rec.schema_id]
-                        schema_ids[rec.schema_id] = w.register_schema(s.name, s.encoding, s.data)
-                    sid = schema_ids[rec.schema_id]
-                channel_ids[rec.id] = w.register_channel(rec.topic, rec.message_encoding, sid,
-                                                         dict(rec.metadata))
-            elif isinstance(rec, Message) and rec.channel_id in channel_ids:
-                w.add_message(channel_ids[rec.channel_id], log_time=rec.log_time,
-                              publish_time=rec.publish_time, sequence=rec.sequence,
-                              data=rec.data)
-        w.add_metadata("siva.recovery", {"from": path.name + (".partial" if keep_partial
-                                                              else " (unfinished, removed)"),
-                                         "bytes_kept": str(end), "bytes_total": str(len(raw))})
-        w.finish()
-        fh.flush()
-        os.fsync(fh.fileno())
-    if keep_partial:
-        os.replace(path, path.with_name(path.name + ".partial"))
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
-    return path
-
-
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
