@@ -15,3 +15,24 @@ class ApiError(Exception):
 
 class UploadTooLarge(Exception):
     pass
+
+
+# --------------------------------------------------------------------------- the store
+class StoreError(Exception):
+    """Base of the store's refusals (api/http_errors.py maps them to 4xx)."""
+
+
+class UnknownSystem(StoreError):
+    pass
+
+
+class SpecConflict(StoreError):
+    pass
+
+
+class DuplicateConflict(StoreError):
+    pass
+
+
+class UnknownRecording(StoreError):
+    pass

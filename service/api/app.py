@@ -30,7 +30,8 @@ from .routes.systems import router
 from .limits import LimitError, check_sampling_rate, check_structure
 from .security import SecurityMiddleware, allowed_hosts
 from ..settings import Settings
-from ..storage.store import DuplicateConflict, SpecConflict, Store, UnknownRecording, UnknownSystem
+from ..errors import DuplicateConflict, SpecConflict, UnknownRecording, UnknownSystem
+from ..storage.store import Store
 from ..storage.uploads import parse_upload
 from ..fleet.executor import TrainerHandle, make_executor
 

@@ -25,7 +25,7 @@ from siva_core import Recording, RecordingError
 from .routes.systems import ERROR_RESPONSES, require_read_token
 from .security import csp_with_scripts
 from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
-from ..storage.store import UnknownSystem
+from ..errors import UnknownSystem
 from ..timefmt import iso_utc
 
 log = logging.getLogger("siva.service.dashboard")

@@ -6,7 +6,7 @@ front's side.  It does not import ray: the front wraps :class:`TrainerHost` with
 
 Inside, each system is an ordinary :class:`~service.trainer.SystemWorker` (trainer thread,
 refiner thread, checkpoints) working on the shared data dir through the narrow
-:class:`~service.storage.store.TrainerStoreView`.  Its event-log calls go into an
+:class:`~service.storage.trainer_view.TrainerStoreView`.  Its event-log calls go into an
 :class:`EventQueue` that the front drains and writes to the MCAP log: the front stays the
 log's one writer, events keep their order, and an event is dropped from the queue only
 once the front acknowledged it (a poll lost in transit is sent again).
@@ -25,7 +25,8 @@ from typing import Any
 
 from .ray_placement import read_placement
 from ..settings import Settings
-from ..storage.store import TrainerStoreView, UnknownSystem
+from ..errors import UnknownSystem
+from ..storage.trainer_view import TrainerStoreView
 
 log = logging.getLogger("siva.service.ray_host")
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..storage.store import atomic_write
+from ..storage.files import atomic_write
 
 FILE = "ray-placement.json"
 

@@ -14,7 +14,10 @@ from typing import Any
 from siva_core import Processing, Recording, RecordingError, States, Structure
 
 from ..settings import Settings
-from ..storage.store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
+from ..errors import UnknownSystem
+from ..storage.recordings import RecordingMeta
+from ..storage.store import Store
+from .replay_buffer import ReplayBuffer
 from ..storage.uploads import processing_for
 from .types import DataSet
 

@@ -18,7 +18,8 @@ from ..monitoring.detector import DetectorSettings
 from .estimate import jsonable
 from ..monitoring.monitor import RecordMonitor
 from ..settings import Settings
-from ..storage.store import Store, UnknownSystem
+from ..errors import UnknownSystem
+from ..storage.store import Store
 from .refiner import REFINE_LOCK
 
 

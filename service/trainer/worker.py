@@ -44,7 +44,8 @@ from ..storage.checkpoints import checkpoint_state, matches
 from ..monitoring.drift import EstimateHistory
 from .estimate import estimate_view
 from ..settings import Settings
-from ..storage.store import Store, UnknownSystem
+from ..errors import UnknownSystem
+from ..storage.store import Store
 from .anchoring import anchor_record, apply_anchor, build_anchor, processing_from
 from .data import DataFeed, SystemDeleted
 from .factory import base_snapshot, default_trainer

@@ -10,7 +10,9 @@ import pytest
 from service.fleet.ray_host import MAX_QUEUED_EVENTS, EventQueue
 from service.fleet.ray_placement import Placement, read_placement
 from service.settings import Settings
-from service.storage.store import Store, TrainerStoreView, UnknownSystem
+from service.errors import UnknownSystem
+from service.storage.store import Store
+from service.storage.trainer_view import TrainerStoreView
 
 
 def test_placement_packs_systems_and_survives_a_restart(tmp_path: Path) -> None:

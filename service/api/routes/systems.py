@@ -22,7 +22,9 @@ from ..limits import LimitError, parse_spec_body
 from ..security import cross_site
 from ..schemas import (DriftReport, ErrorDetail, Estimate, Health, RecordingAck, RecordingInfo,
                        RecordingList, SystemAck, SystemList, SystemSpec)
-from ...storage.store import FORMATS, NAME_RE, UnknownRecording, UnknownSystem
+from ...errors import UnknownRecording, UnknownSystem
+from ...storage.recordings import FORMATS
+from ...storage.store import NAME_RE
 from ...trainer.estimate import estimate_view
 
 
