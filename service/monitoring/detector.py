@@ -1,7 +1,7 @@
 """Drift detection on per-record estimates: a sequential test with a stated false-alarm rate.
 
 Why per record: every record is an independent measurement of the structure, so one
-estimate per record (``service/record_fit.py``) gives a series whose scatter is the
+estimate per record (``record_fit.py``) gives a series whose scatter is the
 scatter *across records* - the thing a change has to stand out from.  Testing the trainer's
 per-epoch jitter against an ensemble interval (the previous rule) compared two unrelated
 scales and raised false alarms on static data.
@@ -48,51 +48,15 @@ damping ratio):
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .alarm_text import alarm_message
+from .change_point import CHANGE_POINT_WINDOW, change_point, cusum_change
+from .cusum import CLEAR_Z, DetectorSettings
 from .forming_baseline import YOUNG_MIN_SEGMENT, YOUNG_Z, young_change
-
-#: |z| below which a value counts as "back to baseline" when clearing a confirmed alarm
-CLEAR_Z = 2.0
-#: chi-square(1) 95 % quantile: change-point positions within this much cost of the best
-CHI2_1_95 = 3.841
-#: records segmented when locating a change (exact segmentation is quadratic in this)
-CHANGE_POINT_WINDOW = 300
-
-
-@dataclass(frozen=True)
-class DetectorSettings:
-    baseline_records: int = 10        # records whose estimates form the reference
-    baseline_guard: int = 10          # a record joins the baseline this many records later ...
-    baseline_max: int = 200           # ... while in control, up to this many records
-    arl0_records: float = 20000.0     # nominal in-control ARL of the whole detector
-    k: float = 0.5                    # CUSUM reference value, in scatter units
-    clip: float = 4.0                 # |z| cap: one outlier cannot alarm alone
-    centre_inflation: float = 3.0     # the centre's error counts this many times in z
-    min_rel_scatter: float = 0.005    # scatter floor relative to |centre|
-    confirm_records: int = 3          # records above h after raising -> confirmed
-    clear_records: int = 5            # records back within |z| < 2 -> cleared
-
-    def threshold(self, n_quantities: int) -> float:
-        """CUSUM decision interval h for the nominal ARL with ``n_quantities`` tested."""
-        return cusum_threshold(2.0 * max(1, n_quantities) * self.arl0_records, self.k)
-
-
-def cusum_threshold(arl: float, k: float) -> float:
-    """h such that a one-sided CUSUM with reference k has in-control ARL ``arl``
-    (Siegmund's approximation, standard normal increments)."""
-    def arl_of(h: float) -> float:
-        b = 2 * k * (h + 1.166)
-        return (math.exp(b) - b - 1) / (2 * k * k)
-
-    lo, hi = 0.0, 100.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if arl_of(mid) < arl else (lo, mid)
-    return hi
 
 
 class ChangeDetector:
@@ -367,37 +331,15 @@ class ChangeDetector:
             # the change point does not show the shift the CUSUM saw (e.g. a slow drift):
             # the mean since the CUSUM of the alarm's side last stood at zero, against the
             # reference - the estimate that goes with the evidence that raised the alarm
-            est = self._cusum_change(q, 0 if sign > 0 else 1, start, b)
+            est = cusum_change(self.z[q], self.values[q],
+                               [self._scale(q, i) for i in range(n)], 0 if sign > 0 else 1,
+                               self.settings.k, start, b.get("centre"), b.get("centre_se"))
             if est is not None:
-                rel, lo, hi, since = est
+                rel, lo, hi, first = est
+                since = self.records[first].get("index")
                 alarm.update(change_rel=rel, change_rel_ci95=[lo, hi], change_since_index=since,
                              change_estimate="CUSUM: mean since its last zero - reference")
         alarm["message"] = alarm_message(alarm)
-
-    def _cusum_change(self, q: str, side: int, start: int, b: Mapping[str, Any]
-                      ) -> tuple[float, float, float, Any] | None:
-        """(relative change, 95 % interval, first record index) of the values since the
-        one-sided CUSUM ``side`` was last zero, against the reference centre."""
-        k, acc, last_zero = self.settings.k, 0.0, start - 1
-        n = len(self.records)
-        for i in range(start, n):
-            z = self.z[q][i]
-            if z is None:
-                continue
-            acc = max(0.0, acc + (z if side == 0 else -z) - k)
-            if acc == 0.0:
-                last_zero = i
-        idx = [i for i in range(last_zero + 1, n) if self.values[q][i] is not None]
-        centre = b.get("centre")
-        if not idx or not centre:
-            return None
-        x = np.array([self.values[q][i] for i in idx], dtype=float)
-        s = np.array([self._scale(q, i) or np.nan for i in idx], dtype=float)
-        var = float(np.nanmean(s ** 2)) / len(idx) if np.isfinite(s).any() else 0.0
-        se = math.sqrt(var + float(b.get("centre_se") or 0.0) ** 2)
-        change = float(x.mean()) - centre
-        return (change / abs(centre), (change - 1.96 * se) / abs(centre),
-                (change + 1.96 * se) / abs(centre), self.records[idx[0]].get("index"))
 
     # ------------------------------------------------------------------ read-out
     def report(self) -> dict[str, Any]:
@@ -441,76 +383,6 @@ class ChangeDetector:
         self.seen = int(d.get("seen", len(self.records)))
         self.cusum = {q: list(v) for q, v in d["cusum"].items()}
         self.alarms = [dict(a) for a in d.get("alarms", [])]
-
-
-def alarm_message(alarm: Mapping[str, Any]) -> str:
-    """One sentence that states the change once, consistent with the alarm's state.
-
-    Active: "f1_hz decreased by 1.0 % (95 % CI 0.4-1.6 %) since record 12; confirmed at
-    record 15".  Cleared: what was raised, then when and why it was cleared - never the
-    state it had before."""
-    q = alarm.get("parameter", "?")
-    rel, ci = alarm.get("change_rel"), alarm.get("change_rel_ci95")
-    noun = "decrease" if alarm.get("direction") == "decrease" else "increase"
-    if rel is not None:
-        amount = f"{abs(rel) * 100:.1f} %"
-        if ci:
-            lo, hi = (100 * x for x in ci)
-            amount += (f" (95 % CI {min(abs(lo), abs(hi)):.1f}-{max(abs(lo), abs(hi)):.1f} %)"
-                       if lo * hi > 0 else f" (95 % CI {lo:+.1f} to {hi:+.1f} %)")
-    else:
-        amount = ""
-    since = alarm.get("change_since_index")
-    when = f" since record {since}" if since is not None else ""
-    state = alarm.get("state")
-    if state == "cleared":
-        raised = alarm.get("raised_index")
-        what = f"{q}: {noun}" + (f" of {amount}" if amount else "") + when
-        how = ("raised at record {r}, confirmed at record {c}" if alarm.get("confirmed_record")
-               else "raised at record {r}").format(r=raised, c=alarm.get("confirmed_index"))
-        return (f"{what}; {how}; cleared at record {alarm.get('cleared_index')}: "
-                f"{alarm.get('cleared_because') or 'cleared'}")
-    verb = "decreased" if noun == "decrease" else "increased"
-    what = f"{q} {verb}" + (f" by {amount}" if amount else "") + when
-    if state == "confirmed":
-        return f"{what}; confirmed at record {alarm.get('confirmed_index')}"
-    return f"{what}; raised at record {alarm.get('raised_index')}, not yet confirmed"
-
-
-def change_point(z: Sequence[float | None], values: Sequence[float | None],
-                 scales: Sequence[float | None]) -> dict[str, Any] | None:
-    """One mean change in a standardised series (``ruptures``, exact, l2 cost).
-
-    Returns the first index after the change, a 95 % set of such indices (costs within
-    the chi-square(1) 95 % quantile of the best, the likelihood-ratio interval for a known
-    unit scatter), and the change in the raw values (mean after - mean before) with a
-    95 % interval from the scatter.  None when the series is too short.
-    """
-    import ruptures as rpt
-
-    idx = [i for i, (a, v) in enumerate(zip(z, values)) if a is not None and v is not None]
-    if len(idx) < 4:
-        return None
-    signal = np.array([z[i] for i in idx], dtype=float)
-    bkps = rpt.Dynp(model="l2", min_size=1, jump=1).fit(signal[:, None]).predict(n_bkps=1)
-    tau = int(bkps[0])
-    costs = np.array([_split_cost(signal, t) for t in range(1, len(signal))])
-    ok = np.flatnonzero(costs - costs.min() <= CHI2_1_95) + 1
-    x = np.array([values[i] for i in idx], dtype=float)
-    s = np.array([scales[i] if scales[i] else np.nan for i in idx], dtype=float)
-    before, after = x[:tau], x[tau:]
-    sb, sa = np.nanmean(s[:tau]), np.nanmean(s[tau:])
-    change = float(after.mean() - before.mean())
-    se = float(math.sqrt(sb * sb / len(before) + sa * sa / len(after)))
-    return {"index": idx[tau], "interval": [idx[int(ok.min())], idx[int(ok.max())]],
-            "change": change, "change_ci95": [change - 1.96 * se, change + 1.96 * se],
-            "before_mean": float(before.mean()), "after_mean": float(after.mean()),
-            "n_before": int(len(before)), "n_after": int(len(after))}
-
-
-def _split_cost(x: np.ndarray, t: int) -> float:
-    a, b = x[:t], x[t:]
-    return float(((a - a.mean()) ** 2).sum() + ((b - b.mean()) ** 2).sum())
 
 
 def _finite(x: Any) -> float | None:
