@@ -22,10 +22,11 @@ from starlette.concurrency import run_in_threadpool
 
 from siva_core import Recording, RecordingError
 
-from .routes.systems import ERROR_RESPONSES, require_read_token
+from .auth import require_read_token
+from .deps import ServiceDep, SystemDep
+from .http_errors import ERROR_RESPONSES
 from .security import csp_with_scripts
 from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
-from ..errors import UnknownSystem
 from ..timefmt import iso_utc
 
 log = logging.getLogger("siva.service.dashboard")
@@ -57,19 +58,13 @@ async def swagger_ui(request: Request) -> HTMLResponse:
 @router.get("/v1/systems/{name}/latest-record", tags=["dashboard"],
             responses={k: v for k, v in ERROR_RESPONSES.items() if k in (401, 404, 409, 421)},
             dependencies=[Depends(require_read_token)])
-async def latest_record(name: str, request: Request) -> dict[str, Any]:
+async def latest_record(name: str, request: Request, w: SystemDep,
+                        svc: ServiceDep) -> dict[str, Any]:
     """The most recent recording simulated with the current estimate (``best`` when there
     is one, else the headline means): measured vs simulated displacement [mm] and residual,
     Fourier spectra, CWT.  ``available: false`` with a ``reason`` while there is nothing to
     show yet.  Computed in a thread and cached per data version (record id + parameters)."""
-    from ..errors import ApiError
-
-    svc = request.app.state.service
-    w = svc.worker(name)  # 404 for an unknown system
-    try:
-        metas = svc.store.recordings(name)
-    except UnknownSystem as exc:
-        raise ApiError(404, str(exc)) from None
+    metas = svc.store.recordings(name)  # UnknownSystem: 404
     if not metas:
         return {"system": name, "available": False, "reason": "no recording yet"}
     meta = max(metas, key=lambda m: m.index)
@@ -96,7 +91,7 @@ async def latest_record(name: str, request: Request) -> dict[str, Any]:
                 raise
             log.warning("%s: latest record with the trainer's chain failed (%s); own chain",
                         name, exc)
-            from ...storage.uploads import processing_for
+            from ..storage.uploads import processing_for
             series = compute_latest(w.structure, rec, processing_for([rec], w.structure.dofs),
                                     theta)
         return {"system": name, "available": True, "record": record,

@@ -208,7 +208,7 @@ def install(app: FastAPI, service: Any) -> None:
     registry.register(SystemsCollector(service))
     app.state.metrics_registry = registry
 
-    from .routes.systems import require_read_token  # reads behind the token when asked (issue 19)
+    from .auth import require_read_token  # reads behind the token when asked (issue 19)
 
     @app.get("/metrics", include_in_schema=False, dependencies=[Depends(require_read_token)])
     async def metrics(request: Request) -> Response:

@@ -23,7 +23,7 @@ from typing import Any
 
 from siva_core import Structure
 
-from ..errors import ApiError
+from ..errors import Unavailable
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
 from ..settings import Settings
@@ -116,8 +116,9 @@ class RayTrainer:
             report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
                              timeout=120)
         except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
-            raise ApiError(503, f"system {self.name!r}: its trainer actor is unavailable "
-                                f"({type(exc).__name__}); retry in a minute") from None
+            raise Unavailable(f"system {self.name!r}: its trainer actor is unavailable "
+                              f"({type(exc).__name__}); retry in a minute",
+                              retry_after_s=60) from None
         self._drift, self.drift_at = report, time.monotonic()
         return report
 

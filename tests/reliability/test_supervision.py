@@ -9,7 +9,7 @@ import time
 import pytest
 
 from service.fleet import executor as executor_mod
-from service.api.app import SivaService
+from service.systems import SivaService
 from service.settings import Settings
 
 SPEC = {"name": "a", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [

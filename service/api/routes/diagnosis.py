@@ -29,9 +29,11 @@ from fastapi.responses import HTMLResponse, JSONResponse
 
 from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
-from ...errors import ApiError
+from ...errors import Conflict, NotFound
+from ..auth import require_read_token, require_write_rights
+from ..deps import get_service
+from ..http_errors import ApiError, errors
 from ..schemas import ErrorDetail
-from .systems import errors, require_read_token, require_write_rights, service_of
 
 log = logging.getLogger("siva.service.diagnosis")
 router = APIRouter()
@@ -159,14 +161,14 @@ def _run(job: DiagnosisJob, svc: Any, name: str) -> None:
 def _current(request: Request, name: str, quick: bool, start: bool) -> DiagnosisJob:
     """The job of the current records; with ``start``, a new one when there is none (which
     needs write rights, and cancels a superseded run)."""
-    svc = service_of(request)
+    svc = get_service(request)
     w = svc.worker(name)  # 404 / 409 for unknown or broken systems
     metas = svc.store.recordings(name)
     train = [m.id for m in metas if m.role == "train"]
     val = [m.id for m in metas if m.role == "validation"]
     if not train or not val:
-        raise ApiError(409, f"system {name!r}: a diagnosis needs at least one train and one "
-                            f"val recording (has {len(train)} train, {len(val)} val)")
+        raise Conflict(f"system {name!r}: a diagnosis needs at least one train and one "
+                       f"val recording (has {len(train)} train, {len(val)} val)")
     key = _data_key(svc.store.spec(name), train, val, quick)
     jobs = _jobs(request)
     with jobs.lock:
@@ -174,8 +176,8 @@ def _current(request: Request, name: str, quick: bool, start: bool) -> Diagnosis
         if job is not None and job.key == key and job.state not in ("failed", "cancelled"):
             return job
     if not start:
-        raise ApiError(404, f"system {name!r}: no diagnosis of the current records yet "
-                            f"(GET /v1/systems/{name}/diagnosis starts one)")
+        raise NotFound(f"system {name!r}: no diagnosis of the current records yet "
+                       f"(GET /v1/systems/{name}/diagnosis starts one)")
     try:
         require_write_rights(request, "starting a diagnosis")
     except ApiError:
@@ -233,6 +235,6 @@ async def get_diagnosis_report(name: str, request: Request,
     """The HTML report of the finished diagnosis of the current records (404 before)."""
     job = _current(request, name, quick, start=False)
     if job.state != "done" or job.html is None:
-        raise ApiError(404, f"system {name!r}: the diagnosis is {job.state} "
-                            f"({100 * job.fraction:.0f} %); the report follows when done")
+        raise NotFound(f"system {name!r}: the diagnosis is {job.state} "
+                       f"({100 * job.fraction:.0f} %); the report follows when done")
     return HTMLResponse(job.html)

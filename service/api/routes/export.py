@@ -1,15 +1,17 @@
 """`GET /v1/systems/{name}/export/{what}.csv`: the estimate, per-record fits, drift history
-and alarms as CSV files (service/export.py says what each holds)."""
+and alarms as CSV files (``csv_export.py`` says what each holds)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
-from ...errors import ApiError
+from ...errors import NotFound
 from ...trainer.estimate import estimate_view
+from ..auth import require_read_token
 from ..csv_export import EXPORTS, export_csv
-from .systems import _ERRORS, require_read_token, service_of
+from ..deps import ServiceDep, SystemDep
+from ..http_errors import WRITE_ERRORS
 
 router = APIRouter()
 
@@ -19,14 +21,12 @@ router = APIRouter()
             responses={200: {"description": "text/csv; header row with units, e.g. "
                                             "`k1 [N/m]`; times as `time_utc`",
                              "content": {"text/csv": {"schema": {"type": "string"}}}},
-                       **_ERRORS},
+                       **WRITE_ERRORS},
             dependencies=[Depends(require_read_token)])
-async def export(name: str, what: str, request: Request) -> Response:
+async def export(name: str, what: str, w: SystemDep, svc: ServiceDep) -> Response:
     """estimates | records | drift | alarms as CSV (a download: Content-Disposition)."""
     if what not in EXPORTS:
-        raise ApiError(404, f"export {what!r}: one of {', '.join(f'{e}.csv' for e in EXPORTS)}")
-    svc = service_of(request)
-    w = svc.worker(name)
+        raise NotFound(f"export {what!r}: one of {', '.join(f'{e}.csv' for e in EXPORTS)}")
     units = w.structure.parameter_units()
     est = estimate_view(w.snapshot(), svc.counts(name))
     report = await run_in_threadpool(w.drift_report) if what != "estimates" else {}
