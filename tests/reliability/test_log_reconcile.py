@@ -168,7 +168,8 @@ def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path
     """A system deleted and created again (another spec) whose log was then repaired: the
     replay starts at the repair's baseline and does not trip over the older incarnation."""
     from service.storage.eventlog import EventLog
-    from service.replay.run import _plan, explains, log_files
+    from service.replay.plan import log_files, plan_replay
+    from service.replay.run import explains
 
     def spec(k: str) -> dict:
         return {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [
@@ -192,7 +193,7 @@ def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path
         new.log_snapshot("s", {**est, "epoch": 12})
     files = log_files(tmp_path / "logs" / "s")
     assert len(files) == 2
-    plan = _plan(files)
+    plan = plan_replay(files)
     assert plan.spec.spec == spec("k") and set(plan.recordings) == {"r1", "r2"}
     assert [d.epoch for d in plan.datasets] == [10] and plan.final_epoch == 12
     assert plan.baselines[0].baseline_epoch == 10 and plan.baselines[0].state_bytes() == b"state"
