@@ -4,8 +4,8 @@ Why: an estimate the service published should be reproducible by anyone holding 
 to audit it, to re-run it with a fixed bug, or to reproduce a drift alarm.  The service is
 deterministic given (spec, trainer preset and seed, the data set used at each epoch), and
 the log holds all three, so on the same platform a replay reproduces the live estimate
-bit for bit.  On another platform (library builds, CPU kernels: service/storage/eventlog/fingerprint.py, which
-every log records) float rounding differs and training amplifies it; the replay then says
+bit for bit.  On another platform (library builds, CPU kernels: the fingerprint every log
+records, service/storage/eventlog/fingerprint.py) float rounding differs and training amplifies it; the replay then says
 ``reproduced`` when it lands within a stated tolerance of the published spread, else
 ``differs`` with where (``compared_to_log.verdict``).
 
