@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from siva_core import RecordingError, RecordingTooLarge, SpecError, Structure
@@ -21,10 +22,37 @@ from .errors import (Conflict, DuplicateConflict, Invalid, NotFound, SpecConflic
 from .fleet.executor import TrainerHandle, make_executor
 from .limits import check_sampling_rate, check_structure
 from .settings import Settings
+from .storage.recordings import RecordingMeta
 from .storage.store import Store
 from .storage.uploads import parse_upload
 
 log = logging.getLogger("siva.service")
+
+
+@dataclass(frozen=True)
+class Upload:
+    """An accepted recording: its stored meta, whether it was already there, and what
+    parsing it warned about (the API's 202 body is built from it)."""
+
+    meta: RecordingMeta
+    duplicate: bool
+    warnings: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.meta.to_dict(), "duplicate": self.duplicate,
+                "warnings": list(self.warnings)}
+
+
+@dataclass(frozen=True)
+class Deletion:
+    """What deleting a system removed: its recordings (None: unknown), and what happened
+    to its event logs (``EventLog.remove``, or ``kept`` with the error)."""
+
+    recordings: int | None
+    logs: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"recordings": self.recordings, "logs": self.logs}
 
 
 # --------------------------------------------------------------------------- event log hook
@@ -241,7 +269,7 @@ class SivaService:
         self._start_worker(name, structure)
         return True, structure
 
-    def delete_system(self, name: str, *, archive_logs: bool = False) -> dict[str, Any]:
+    def delete_system(self, name: str, *, archive_logs: bool = False) -> Deletion:
         """Stop the trainer (at most ``stop_timeout_s``), then delete atomically.  A delete
         the disk refuses (507) changes nothing: the trainer is started again.  Then the
         system's MCAP event logs are deleted too, or archived (``archive_logs``); returns
@@ -280,11 +308,11 @@ class SivaService:
             logs = {"action": "kept", "files": None,
                     "error": f"the event logs could not be {'archived' if archive_logs else 'deleted'} "
                              f"({exc.strerror or exc}); they are under logs/{name}/"}
-        return {"recordings": n_recordings, "logs": logs}
+        return Deletion(n_recordings, logs)
 
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
                       filename: str, channel_map: dict[str, str] | None = None,
-                      units: dict[str, str] | None = None) -> dict[str, Any]:
+                      units: dict[str, str] | None = None) -> Upload:
         """Validate, store durably, log, notify the worker; runs in a worker thread."""
         w = self.worker(name)
         try:
@@ -294,7 +322,7 @@ class SivaService:
                 raise NotFound(str(exc)) from None
             info = parse_upload(w.structure, raw, fmt, filename, channel_map=channel_map,
                                 units=units, existing_rates=rates, theta=_estimate_theta(w))
-            check_sampling_rate(float(info.get("fs", 0.0)), filename, self.settings)
+            check_sampling_rate(info.fs, filename, self.settings)
         except RecordingTooLarge as exc:
             raise TooLarge(str(exc)) from None
         except RecordingError as exc:
@@ -319,7 +347,7 @@ class SivaService:
             raise StorageRefused(_storage_detail("the recording", exc)) from None
         if not duplicate:
             w.notify()
-        return {**meta.to_dict(), "duplicate": duplicate, "warnings": info["warnings"]}
+        return Upload(meta, duplicate, info.warnings)
 
     def counts(self, name: str) -> dict[str, int]:
         try:

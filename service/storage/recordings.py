@@ -51,6 +51,19 @@ class RecordingMeta:
         return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
 
 
+@dataclass(frozen=True)
+class UploadFacts:
+    """What parsing an upload found (``uploads.parse_upload``), recorded in its meta."""
+
+    n_samples: int = 0
+    fs: float = 0.0
+    duration_s: float = 0.0
+    columns: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    channel_map: dict[str, str] | None = None
+    units: dict[str, str] | None = None
+
+
 def role_counts(metas: Iterable[RecordingMeta]) -> dict[str, int]:
     c = {r: 0 for r in ROLES}
     for m in metas:

@@ -31,7 +31,7 @@ from typing import Any, Callable
 from ..errors import DuplicateConflict, SpecConflict, UnknownSystem
 from .checkpoints import load_checkpoint, save_checkpoint
 from .files import atomic_write, fsync_dir, mkdir_durable
-from .recordings import FORMATS, RecordingMeta, auto_role, find_recording, raw_name, role_counts
+from .recordings import FORMATS, RecordingMeta, UploadFacts, auto_role, find_recording, raw_name, role_counts
 
 log = logging.getLogger("siva.service.store")
 
@@ -186,7 +186,7 @@ class Store:
 
     # ------------------------------------------------------------------ recordings
     def add_recording(self, name: str, raw: bytes, *, role: str | None, fmt: str,
-                      filename: str, info: dict[str, Any],
+                      filename: str, info: UploadFacts,
                       before_commit: Callable[[RecordingMeta], None] | None = None
                       ) -> tuple[RecordingMeta, bool]:
         """Durably store one validated upload; returns (meta, duplicate).
@@ -219,10 +219,10 @@ class Store:
             meta = RecordingMeta(
                 id=rid, system=name, index=index, role=role, role_source=source, sha256=sha,
                 fmt=fmt, filename=filename, bytes=len(raw),
-                n_samples=int(info.get("n_samples", 0)), fs=float(info.get("fs", 0.0)),
-                duration_s=float(info.get("duration_s", 0.0)),
-                columns=tuple(info.get("columns", ())), received_at=time.time(),
-                channel_map=info.get("channel_map") or None, units=info.get("units") or None)
+                n_samples=int(info.n_samples), fs=float(info.fs),
+                duration_s=float(info.duration_s), columns=tuple(info.columns),
+                received_at=time.time(), channel_map=info.channel_map or None,
+                units=info.units or None)
             rdir = s.path / "recordings"
             raw_path = rdir / raw_name(rid, fmt)
             atomic_write(raw_path, raw)

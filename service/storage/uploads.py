@@ -6,12 +6,14 @@ file and the problem, instead of being stored and failing later inside a thread.
 from __future__ import annotations
 
 import csv
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from siva_core import (Processing, Recording, RecordingError, Structure, check_rates,
                         check_recording, PreflightError)
+
+from .recordings import UploadFacts
 
 
 def processing_for(recordings: Sequence[Recording], dofs: Sequence[str]) -> Processing:
@@ -25,7 +27,7 @@ def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str, *,
                  channel_map: dict[str, str] | None = None,
                  units: dict[str, str] | None = None,
                  existing_rates: dict[str, float] | None = None,
-                 theta: np.ndarray | None = None) -> dict[str, Any]:
+                 theta: np.ndarray | None = None) -> UploadFacts:
     """Validate an upload exactly as the worker will use it; returns facts for the meta.
 
     Raises RecordingError (a 4xx) for anything unusable, including a record the processing
@@ -63,8 +65,10 @@ def parse_upload(structure: Structure, raw: bytes, fmt: str, name: str, *,
         raise RecordingError(f"{name}: cannot be processed ({exc})") from None
     if len(st) < 2 or not all(np.isfinite(x).all() for x in (st.q, st.v, st.a, st.f)):
         raise RecordingError(f"{name}: processing leaves no usable (finite) samples")
-    return {"n_samples": len(rec), "fs": rec.fs, "duration_s": float(rec.time[-1] - rec.time[0]),
-            "columns": ["time", *rec.channels],
-            "warnings": [str(w.message) for w in caught] + [p.message for p in problems],
-            "channel_map": dict(channel_map) if channel_map else None,
-            "units": dict(units) if units else None}
+    return UploadFacts(n_samples=len(rec), fs=float(rec.fs),
+                       duration_s=float(rec.time[-1] - rec.time[0]),
+                       columns=("time", *rec.channels),
+                       warnings=tuple([str(w.message) for w in caught]
+                                      + [p.message for p in problems]),
+                       channel_map=dict(channel_map) if channel_map else None,
+                       units=dict(units) if units else None)

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from service.storage import store as store_mod
+from service.storage.recordings import UploadFacts
 from service.storage.store import Store
 
 CSV = {"content-type": "text/csv"}
@@ -142,7 +143,7 @@ def test_store_write_failures_change_nothing(tmp_path, monkeypatch, err):
         with pytest.raises(OSError):
             st.put_spec("b", {"name": "b"})
         with pytest.raises(OSError):
-            st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info={})
+            st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info=UploadFacts())
     assert st.systems() == ["a"] and st.recordings("a") == []
     assert not (tmp_path / "systems" / "b").exists()
     # a failing write-ahead log aborts the upload: nothing committed, no orphan raw file
@@ -150,7 +151,7 @@ def test_store_write_failures_change_nothing(tmp_path, monkeypatch, err):
         raise OSError(errno.ENOSPC, "log full")
 
     with pytest.raises(OSError):
-        st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info={},
+        st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info=UploadFacts(),
                          before_commit=log_fails)
     assert st.recordings("a") == []
     assert list((tmp_path / "systems" / "a" / "recordings").iterdir()) == []

@@ -11,6 +11,7 @@ from service.fleet.ray_host import MAX_QUEUED_EVENTS, EventQueue
 from service.fleet.ray_placement import Placement, read_placement
 from service.settings import Settings
 from service.errors import UnknownSystem
+from service.storage.recordings import UploadFacts
 from service.storage.store import Store
 from service.storage.trainer_view import TrainerStoreView
 
@@ -53,7 +54,7 @@ def test_event_queue_is_bounded_and_keeps_dataset_events() -> None:
 
 def _upload(store: Store, name: str, raw: bytes, role: str) -> str:
     meta, _ = store.add_recording(name, raw, role=role, fmt="csv", filename="x.csv",
-                                  info={"n_samples": 3, "fs": 100.0})
+                                  info=UploadFacts(n_samples=3, fs=100.0))
     return meta.id
 
 

@@ -85,7 +85,7 @@ async def _receive_recording(svc: SivaService, name: str, request: Request, role
         raise Invalid(f"{filename}: empty body, expected a recording")
     ack = await run_in_threadpool(svc.add_recording, name, raw, role=role, fmt=fmt,
                                   filename=filename, channel_map=cmap, units=units)
-    return JSONResponse(ack, status_code=202)
+    return JSONResponse(ack.to_json(), status_code=202)
 
 
 def _role(role: Any) -> str | None:

@@ -111,4 +111,4 @@ async def delete_system(
         raise Invalid(f"query parameter logs={logs!r}: must be 'delete' or 'archive'")
     done = await run_in_threadpool(svc.delete_system, name,
                                    archive_logs=mode == "archive")
-    return {"deleted": name, **done}
+    return {"deleted": name, **done.to_json()}

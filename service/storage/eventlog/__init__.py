@@ -2,7 +2,8 @@
 identification and the input of ``siva replay`` (docs/logs.md).
 
 - ``channels.py``    topics, message models and their JSON Schemas (the file format)
-- ``writer.py``      :class:`EventLog`: durable, write-ahead appends
+- ``writer.py``      :class:`EventLog`: durable, write-ahead appends, one file per system
+- ``log_file.py``    one open file: the MCAP writer, channels, flush + fsync per message
 - ``reader.py``      :func:`read_events`, :func:`read_metadata`: tolerant of a torn tail
 - ``recovery.py``    :func:`recover`: finish a file a crashed process left open
 - ``fingerprint.py`` the platform fingerprint a bit-identical replay depends on

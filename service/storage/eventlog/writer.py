@@ -27,14 +27,12 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from mcap.exceptions import McapError
-from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel
 
-from .channels import (FORMAT_VERSION, PLATFORM_METADATA, TOPIC_ANCHOR, TOPIC_DATASET,
-                        TOPIC_RECORDING, TOPIC_REPAIR, TOPIC_SNAPSHOT, TOPIC_SPEC, TOPICS,
-                        AnchorEvent, DatasetEvent, RecordingEvent, RepairEvent, SnapshotEvent,
-                        SpecEvent, schema_bytes)
-from .fingerprint import platform_fingerprint
+from .channels import (TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_REPAIR, TOPIC_SNAPSHOT,
+                       TOPIC_SPEC, AnchorEvent, DatasetEvent, RecordingEvent, RepairEvent,
+                       SnapshotEvent, SpecEvent)
+from .log_file import SystemLogFile, finish
 from .reader import is_finished
 from .recovery import recover
 
@@ -65,85 +63,6 @@ class LogPosition:
     datasets: int
 
 
-class _SystemLog:
-    """One open MCAP file: writer, channel ids, and the durability step after each message."""
-
-    def __init__(self, path: Path, system: str, metadata: Mapping[str, str]) -> None:
-        self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(path, "xb")
-        # chunk_size=1: every message closes its own (compressed, CRC'd) chunk immediately,
-        # so nothing sits in a buffer when the process dies.
-        try:
-            self._writer = Writer(self._fh, chunk_size=1, compression=CompressionType.ZSTD)
-            self._writer.start(profile="", library=f"siva ({FORMAT_VERSION})")
-            self._writer.add_metadata("siva", {"format": FORMAT_VERSION, "system": system,
-                                               **{k: str(v) for k, v in metadata.items()}})
-            # what bit-identity of a replay depends on (service/fingerprint.py)
-            self._writer.add_metadata(PLATFORM_METADATA, platform_fingerprint())
-            self._sync()
-        except BaseException:  # e.g. disk full: leave no headless file behind
-            self.abandon()
-            path.unlink(missing_ok=True)
-            raise
-        self._channels: dict[str, int] = {}
-        self._sequence: dict[str, int] = {}
-        self._last_time = 0
-        self.lock = threading.Lock()  # one writer at a time per file; files are independent
-        self.has_spec = False
-
-    def _channel(self, topic: str) -> int:
-        if topic not in self._channels:
-            model = TOPICS[topic]
-            sid = self._writer.register_schema(f"siva.{model.__name__}", "jsonschema",
-                                               schema_bytes(model))
-            self._channels[topic] = self._writer.register_channel(topic, "json", sid)
-            self._sequence[topic] = 0
-        return self._channels[topic]
-
-    def write(self, topic: str, event: BaseModel) -> None:
-        cid = self._channel(topic)
-        # strictly increasing log times keep log-time order == write order for every reader
-        now = max(time.time_ns(), self._last_time + 1)
-        self._last_time = now
-        self._sequence[topic] += 1
-        self._writer.add_message(cid, log_time=now, publish_time=now,
-                                 sequence=self._sequence[topic],
-                                 data=event.model_dump_json().encode())
-        self._sync()
-
-    def count(self, topic: str) -> int:
-        """Events of ``topic`` written to this file so far."""
-        return self._sequence.get(topic, 0)
-
-    def _sync(self) -> None:
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
-
-    def close(self) -> None:
-        self._writer.finish()
-        self._sync()
-        self._fh.close()
-
-    def abandon(self) -> None:
-        """Close without a footer after a failed write (its tail may be torn; the records
-        before it are complete and fsync'ed; :func:`recover` finishes it at the next start)."""
-        try:
-            self._fh.close()
-        except OSError:
-            pass
-
-
-def _finish(sl: _SystemLog) -> None:
-    """Close a system's open file; a disk that refuses leaves it to crash recovery."""
-    with sl.lock:
-        try:
-            sl.close()
-        except OSError as exc:
-            log.warning("cannot finish %s: %s", sl.path, exc)
-            sl.abandon()
-
-
 class EventLog:
     """Append-only MCAP event logs for all systems of one service process.
 
@@ -159,7 +78,7 @@ class EventLog:
         self.root = Path(data_dir) / "logs"
         self.settings = dict(settings or {})
         self._lock = threading.Lock()
-        self._logs: dict[str, _SystemLog] = {}
+        self._logs: dict[str, SystemLogFile] = {}
         self._specs: dict[str, SpecEvent] = {}  # re-logged first in every new file
         self._opened: set[str] = set()          # systems that had a file in this process
         self._closed = False
@@ -208,7 +127,7 @@ class EventLog:
         with self._lock:
             sl = self._logs.pop(system, None)
         if sl is not None:
-            _finish(sl)
+            finish(sl)
 
     def log_recording(self, system: str, rec_id: str, role: str, raw_bytes: bytes, fmt: str,
                       epoch: int, name: str | None = None,
@@ -266,7 +185,7 @@ class EventLog:
             sl = self._logs.pop(system, None)
             self._specs.pop(system, None)
         if sl is not None:
-            _finish(sl)
+            finish(sl)
         folder = self.root / _safe(system)
         if not folder.is_dir():
             return LogRemoval("none", 0)
@@ -332,7 +251,7 @@ class EventLog:
 
         After a failed write the file is abandoned - its tail may be a torn chunk - and the
         next event starts a new file (spec first), so later events stay readable."""
-        retired: _SystemLog | None = None
+        retired: SystemLogFile | None = None
         with self._lock:
             if self._closed:
                 log.warning("event log closed; dropping %s event of %r", topic, system)
@@ -349,7 +268,7 @@ class EventLog:
                 path = self.root / _safe(system) / f"{stamp}-{os.getpid()}.mcap"
                 while path.exists():  # a replacement within the same microsecond
                     path = path.with_name(f"{path.stem}x.mcap")
-                sl = _SystemLog(path, system, {"started": self._started, "pid": os.getpid(),
+                sl = SystemLogFile(path, system, {"started": self._started, "pid": os.getpid(),
                                                **{f"settings.{k}": v
                                                   for k, v in self.settings.items()}})
                 self._logs[system] = sl
