@@ -17,8 +17,8 @@ from typing import Any
 
 from siva_core import RecordingError, RecordingTooLarge, SpecError, Structure
 
-from .errors import (Conflict, DuplicateConflict, Invalid, NotFound, SpecConflict,
-                     StorageRefused, TooLarge, UnknownSystem)
+from .errors import (Conflict, DuplicateConflict, Invalid, NotFound, SpecConflict, StorageRefused,
+                      TooLarge, UnknownSystem)
 from .fleet.executor import TrainerHandle, make_executor
 from .limits import check_sampling_rate, check_structure
 from .settings import Settings

@@ -22,12 +22,12 @@ from starlette.concurrency import run_in_threadpool
 
 from siva_core import Recording, RecordingError
 
+from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
+from ..timefmt import iso_utc
 from .auth import require_read_token
 from .deps import ServiceDep, SystemDep
 from .http_errors import ERROR_RESPONSES
 from .security import csp_with_scripts
-from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
-from ..timefmt import iso_utc
 
 log = logging.getLogger("siva.service.dashboard")
 

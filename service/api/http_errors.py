@@ -17,7 +17,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from ..errors import (Conflict, Invalid, NotFound, ServiceError, StorageRefused, TooLarge,
-                      Unavailable, Unreadable)
+                       Unavailable, Unreadable)
 from .schemas import ErrorDetail
 
 log = logging.getLogger("siva.service")

@@ -23,10 +23,10 @@ from typing import Any
 
 from siva_core import Structure
 
+from ..settings import Settings
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
 from .ray_trainer import DRIFT_FRESH_S, RayTrainer
-from ..settings import Settings
 
 log = logging.getLogger("siva.service.ray")
 

@@ -23,10 +23,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from .ray_placement import read_placement
-from ..settings import Settings
 from ..errors import UnknownSystem
+from ..settings import Settings
 from ..storage.trainer_view import TrainerStoreView
+from .ray_placement import read_placement
 
 log = logging.getLogger("siva.service.ray_host")
 

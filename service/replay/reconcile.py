@@ -29,8 +29,8 @@ from typing import Any, Mapping
 
 from ..storage.checkpoints import matches
 from ..storage.eventlog import TOPIC_DATASET, TOPIC_RECORDING, EventLog, read_events
-from .run import explains
 from ..storage.store import Store
+from .run import explains
 
 log = logging.getLogger("siva.service.reconcile")
 

@@ -34,8 +34,8 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from ..storage.eventlog import AnchorEvent, RepairEvent, SnapshotEvent, SpecEvent
-from .verdict import REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison, summary_line
 from .plan import PlannedDataSet, ReplayError, ReplayPlan, json_tuples, log_files, plan_replay
+from .verdict import REPRODUCED_TOLERANCE_IN_STD, compare_to_log, platform_comparison, summary_line
 
 __all__ = ["REPRODUCED_TOLERANCE_IN_STD", "ReplayError", "explains", "log_files", "replay",
            "summary_line", "write_replay"]

@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping, Sequence
 
-from ..storage.eventlog.fingerprint import fingerprint_differences, platform_fingerprint
 from ..storage.eventlog import SnapshotEvent
+from ..storage.eventlog.fingerprint import fingerprint_differences, platform_fingerprint
 
 #: a replay on another platform "reproduces" the log when every parameter mean is within
 #: this many of its published std of the logged one (docs/logs.md justifies the value)

@@ -31,7 +31,8 @@ from typing import Any, Callable
 from ..errors import DuplicateConflict, SpecConflict, UnknownSystem
 from .checkpoints import load_checkpoint, save_checkpoint
 from .files import atomic_write, fsync_dir, mkdir_durable
-from .recordings import FORMATS, RecordingMeta, UploadFacts, auto_role, find_recording, raw_name, role_counts
+from .recordings import (FORMATS, RecordingMeta, UploadFacts, auto_role, find_recording, raw_name,
+                         role_counts)
 
 log = logging.getLogger("siva.service.store")
 

@@ -30,8 +30,8 @@ from mcap.exceptions import McapError
 from pydantic import BaseModel
 
 from .channels import (TOPIC_ANCHOR, TOPIC_DATASET, TOPIC_RECORDING, TOPIC_REPAIR, TOPIC_SNAPSHOT,
-                       TOPIC_SPEC, AnchorEvent, DatasetEvent, RecordingEvent, RepairEvent,
-                       SnapshotEvent, SpecEvent)
+                        TOPIC_SPEC, AnchorEvent, DatasetEvent, RecordingEvent, RepairEvent,
+                        SnapshotEvent, SpecEvent)
 from .log_file import SystemLogFile, finish
 from .reader import is_finished
 from .recovery import recover
