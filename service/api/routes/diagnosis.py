@@ -31,7 +31,8 @@ from siva_core import DiagnoseSettings, Recording, diagnose, html_report
 
 from ...errors import Conflict, NotFound
 from ..auth import require_read_token, require_write_rights
-from ..deps import get_service
+from ...systems import SivaService
+from ..deps import ServiceDep, get_system
 from ..http_errors import ApiError, errors
 from ..schemas import ErrorDetail
 
@@ -158,11 +159,10 @@ def _run(job: DiagnosisJob, svc: Any, name: str) -> None:
         job.finished = time.time()
 
 
-def _current(request: Request, name: str, quick: bool, start: bool) -> DiagnosisJob:
+def _current(request: Request, svc: SivaService, name: str, quick: bool,
+             start: bool) -> DiagnosisJob:
     """The job of the current records; with ``start``, a new one when there is none (which
     needs write rights, and cancels a superseded run)."""
-    svc = get_service(request)
-    w = svc.worker(name)  # 404 / 409 for unknown or broken systems
     metas = svc.store.recordings(name)
     train = [m.id for m in metas if m.role == "train"]
     val = [m.id for m in metas if m.role == "validation"]
@@ -201,7 +201,6 @@ def _current(request: Request, name: str, quick: bool, start: bool) -> Diagnosis
                                       daemon=True, name=f"diagnosis-{name}")
             jobs.runners[name] = runner
             runner.start()
-    del w
     return job
 
 
@@ -211,15 +210,15 @@ _PROGRESS = {"description": "the run of the current records is queued or running
 
 @router.get("/v1/systems/{name}/diagnosis", tags=["diagnosis"],
             responses={202: _PROGRESS, **errors(401, 403, 404, 409, 422)},
-            dependencies=[Depends(require_read_token)])
-async def get_diagnosis(name: str, request: Request,
+            dependencies=[Depends(require_read_token), Depends(get_system)])  # 404/409 first
+async def get_diagnosis(name: str, request: Request, svc: ServiceDep,
                         quick: bool = Query(False, description="reduced settings: one "
                                             "effect, fewer candidates and evaluations")
                         ) -> JSONResponse:
     """The diagnosis of the system's current train/val records: 202 with progress while it
     runs (started by this request if the data changed: that needs write rights), 200 with
     the result when done (or failed)."""
-    job = _current(request, name, quick, start=True)
+    job = _current(request, svc, name, quick, start=True)
     running = job.state in ("queued", "running")
     return JSONResponse(job.status(name), status_code=202 if running else 200)
 
@@ -229,11 +228,11 @@ async def get_diagnosis(name: str, request: Request,
             responses={code: {"description": v["description"], "content": {"application/json": {
                 "schema": ErrorDetail.model_json_schema()}}}
                 for code, v in errors(401, 404, 409, 422).items()},
-            dependencies=[Depends(require_read_token)])
-async def get_diagnosis_report(name: str, request: Request,
+            dependencies=[Depends(require_read_token), Depends(get_system)])
+async def get_diagnosis_report(name: str, request: Request, svc: ServiceDep,
                                quick: bool = Query(False)) -> HTMLResponse:
     """The HTML report of the finished diagnosis of the current records (404 before)."""
-    job = _current(request, name, quick, start=False)
+    job = _current(request, svc, name, quick, start=False)
     if job.state != "done" or job.html is None:
         raise NotFound(f"system {name!r}: the diagnosis is {job.state} "
                        f"({100 * job.fraction:.0f} %); the report follows when done")
