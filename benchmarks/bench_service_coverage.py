@@ -74,8 +74,8 @@ def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
                settings_overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """One seeded stream through an in-process service; the first final ensemble (and,
     with ``later``, the ensemble again once it holds at least each of those samples)."""
-    from service.app import SivaService
-    from service.estimate import estimate_view
+    from service.systems import SivaService
+    from service.trainer.estimate import estimate_view
     from service.settings import Settings
 
     st = case.structure()
