@@ -26,10 +26,11 @@ where the paper is vague, each measured in ``benchmarks/bench_siva_choices.py``:
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -349,7 +350,8 @@ class SivaTrainer:
             loss_d.backward()
             self.opt_d.step()
             # generator step: fool the updated D on validation, match training accelerations (eq. 4)
-            logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
+            with self._d_frozen():
+                logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
             loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
             loss_mse = ((bt.model_acc(st, theta) - bt.a) / sa).pow(2).mean()
             loss_p = loss_adv + s.gamma * loss_mse
@@ -441,7 +443,8 @@ class SivaTrainer:
                 self.opt_d.zero_grad(set_to_none=True)
                 loss_d.backward()
                 self.opt_d.step()
-                logit = self.discriminator(fake)
+                with self._d_frozen():
+                    logit = self.discriminator(fake)
                 loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
             loss_p = loss_adv + s.gamma * loss_fit
             self.opt_g.zero_grad(set_to_none=True)
@@ -456,6 +459,20 @@ class SivaTrainer:
         if harvested:
             self.oe_targets_.append(ph.lin.to_theta(target))
         return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    @contextlib.contextmanager
+    def _d_frozen(self) -> Iterator[None]:
+        """D's weights as constants while building the generator's loss: its backward pass
+        then computes only the gradient the generator needs (the weights' gradients were
+        discarded by D's next ``zero_grad`` anyway; the generator's are bit-identical)."""
+        params = [p for p in self.discriminator.parameters() if p.requires_grad]
+        for p in params:
+            p.requires_grad_(False)
+        try:
+            yield
+        finally:
+            for p in params:
+                p.requires_grad_(True)
 
     def _set_lr(self, lr: float) -> None:
         for opt in (self.opt_g, self.opt_d):
