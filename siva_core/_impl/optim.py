@@ -33,6 +33,7 @@ _ADD_PARAM_GROUP = _undecorated(torch.optim.Optimizer.add_param_group)
 _ZERO_GRAD = _undecorated(torch.optim.Optimizer.zero_grad)
 _STATE_DICT = _undecorated(torch.optim.Optimizer.state_dict)
 _LOAD_STATE_DICT = _undecorated(torch.optim.Optimizer.load_state_dict)
+_ONE = torch.tensor(1.0)  # the step counters' increment (read only)
 
 
 class FastAdam(torch.optim.Adam):
@@ -133,7 +134,7 @@ class FastAdam(torch.optim.Adam):
             lr, eps = group["lr"], group["eps"]
             steps = [self.state[p]["step"] for p in params]
             g = torch.cat([p.grad.reshape(-1) for p in params])
-            torch._foreach_add_(steps, torch.tensor(1.0), alpha=1.0)
+            torch._foreach_add_(steps, _ONE, alpha=1.0)
             m, v, w = flat["m"], flat["v"], flat["params"]
             m.lerp_(g, 1 - beta1)
             v.mul_(beta2)

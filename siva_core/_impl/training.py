@@ -344,15 +344,16 @@ class SivaTrainer:
             fake_val = bv.model_acc(st, theta)
             real_logit = self.discriminator(self._features(bv.q, bv.v, bv.a))
             fake_logit = self.discriminator(self._features(bv.q, bv.v, fake_val.detach()))
-            loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
-                      + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+            bce = F.binary_cross_entropy_with_logits
+            loss_d = (bce(real_logit, self._label(real_logit, 1.0))
+                      + bce(fake_logit, self._label(fake_logit, 0.0)))
             self.opt_d.zero_grad(set_to_none=True)
             loss_d.backward()
             self.opt_d.step()
             # generator step: fool the updated D on validation, match training accelerations (eq. 4)
             with self._d_frozen():
                 logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
-            loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+            loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
             loss_mse = ((bt.model_acc(st, theta) - bt.a) / sa).pow(2).mean()
             loss_p = loss_adv + s.gamma * loss_mse
             self.opt_g.zero_grad(set_to_none=True)
@@ -438,14 +439,15 @@ class SivaTrainer:
                 fake = ph.val.features(idx, x)
                 real_logit = self.discriminator(real)
                 fake_logit = self.discriminator(fake.detach())
-                loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
-                          + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+                bce = F.binary_cross_entropy_with_logits
+                loss_d = (bce(real_logit, self._label(real_logit, 1.0))
+                          + bce(fake_logit, self._label(fake_logit, 0.0)))
                 self.opt_d.zero_grad(set_to_none=True)
                 loss_d.backward()
                 self.opt_d.step()
                 with self._d_frozen():
                     logit = self.discriminator(fake)
-                loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+                loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
             loss_p = loss_adv + s.gamma * loss_fit
             self.opt_g.zero_grad(set_to_none=True)
             loss_p.backward()
@@ -459,6 +461,16 @@ class SivaTrainer:
         if harvested:
             self.oe_targets_.append(ph.lin.to_theta(target))
         return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    def _label(self, logit: torch.Tensor, value: float) -> torch.Tensor:
+        """A constant BCE target like ``logit`` (reused: the same few shapes every step;
+        nothing writes to it)."""
+        key = (tuple(logit.shape), logit.dtype, value)
+        labels = self.__dict__.setdefault("_labels", {})
+        t = labels.get(key)
+        if t is None:
+            t = labels[key] = torch.full_like(logit, value)
+        return t
 
     @contextlib.contextmanager
     def _d_frozen(self) -> Iterator[None]:
