@@ -105,6 +105,7 @@ class FastAdam(torch.optim.Adam):
         else:
             return False
         flat["m"], flat["v"] = m, v
+        flat["steps"] = [self.state[p]["step"] for p in group["params"]]
         return True
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:  # type: ignore[override]
@@ -132,7 +133,7 @@ class FastAdam(torch.optim.Adam):
                 continue
             beta1, beta2 = group["betas"]
             lr, eps = group["lr"], group["eps"]
-            steps = [self.state[p]["step"] for p in params]
+            steps = flat["steps"]  # the state's step tensors (bound with m and v)
             g = torch.cat([p.grad.reshape(-1) for p in params])
             torch._foreach_add_(steps, _ONE, alpha=1.0)
             m, v, w = flat["m"], flat["v"], flat["params"]
