@@ -162,7 +162,7 @@ class _Pool:
         idx = torch.randint(0, len(self), (n,), generator=rng)
         return _Batch(self.q[idx], self.v[idx], self.a[idx], self.f[idx],
                       None if self.phi is None else self.phi[idx],
-                      None if self.a0 is None else self.a0[idx])
+                      None if self.a0 is None else self.a0[idx], idx)
 
 
 @dataclass
@@ -173,6 +173,7 @@ class _Batch:
     f: torch.Tensor
     phi: torch.Tensor | None
     a0: torch.Tensor | None
+    idx: torch.Tensor | None = None  # the samples' rows in their pool
 
     def model_acc(self, structure: Structure, theta: torch.Tensor) -> torch.Tensor:
         """Model accelerations at this batch's states, one parameter set per sample."""
@@ -203,10 +204,15 @@ class _ValidationSurrogate:
         self.sy, self.sq, self.sv = rms(self.y), rms(self.q), rms(self.v)
         self.n = self.y.shape[0]
         self.names = [r.name for r in lin.records]
+        # the real features of every sample (elementwise, so indexing them is bit-identical
+        # to computing them for the drawn rows)
+        self.real = torch.cat([self.q / self.sq, self.v / self.sv, self.y / self.sy], -1).float()
         edges = np.cumsum([0] + [ser.T for ser in lin.series])
         self.bounds = list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
     def features(self, idx: torch.Tensor, x: torch.Tensor | None) -> torch.Tensor:
+        if x is None:
+            return self.real[idx]
         y = self.y[idx]
         if x is not None:
             y = y + self.r0[idx] + (self.J[idx] * x[:, None, :]).sum(-1)
@@ -284,6 +290,10 @@ class SivaTrainer:
         ref = self.train
         rms = lambda x: x.pow(2).mean(0).sqrt().clamp_min(1e-12)
         self._scale = {"q": rms(ref.q), "v": rms(ref.v), "a": rms(ref.a)}
+        # D's "real" input for every sample of the pool it is drawn from, computed once
+        # (elementwise: each row is what _features gives for a drawn batch, bit for bit)
+        pool = self.val if self.val is not None else self.train
+        self._real_features = self._features(pool.q, pool.v, pool.a)
         if not self.initialised:
             self._initialise(train)
 
@@ -342,7 +352,7 @@ class SivaTrainer:
             theta = self.generator(self._noise(B))
             # discriminator step: real validation accelerations vs the model's at the same states
             fake_val = bv.model_acc(st, theta)
-            real_logit = self.discriminator(self._features(bv.q, bv.v, bv.a))
+            real_logit = self.discriminator(self._real_features[bv.idx])
             fake_logit = self.discriminator(self._features(bv.q, bv.v, fake_val.detach()))
             bce = F.binary_cross_entropy_with_logits
             loss_d = (bce(real_logit, self._label(real_logit, 1.0))
