@@ -51,7 +51,7 @@ from .factory import base_snapshot, default_trainer
 from .readout import (ENSEMBLE_MIN_SAMPLES, EnsembleReadout, candidates, output_error_wanted,
                       read_ensemble)
 from .monitoring import Monitoring
-from .refiner import Refiner
+from .refiner import REFINE_LOCK, Refiner
 from .snapshot import SnapshotParts, build_snapshot, history_entry
 from .types import Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict, best_from
 
@@ -240,6 +240,8 @@ class SystemWorker:
                 self._wake.clear()
                 continue
             self._apply_pending_anchor()
+            # a per-record fit of any system goes first (priority.py), within a bound
+            REFINE_LOCK.yield_to_monitoring(self.settings.monitor_yield_s, self._stop)
             try:
                 t0 = time.perf_counter()
                 elog = self.trainer.run_epoch()

@@ -1,0 +1,110 @@
+"""The process's refiner queue (service/trainer/priority.py): per-record fits go first,
+a waiting re-anchor gives way, and trainers yield to monitoring for a bounded time.
+
+Threads are sequenced with events and by waiting until the queue shows the waiters, so
+the tests do not depend on this CPU's speed."""
+from __future__ import annotations
+
+import threading
+import time
+
+
+from service.trainer.priority import ANCHOR, BEST, MONITOR, VALIDATION, RefineQueue
+
+
+def _until(cond, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.005)
+
+
+def _waiter(q: RefineQueue, level: int, order: list[int], **kw) -> threading.Thread:
+    def run() -> None:
+        with q.hold(level, **kw) as turn:
+            if turn:
+                order.append(level)
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def test_the_most_urgent_waiter_gets_the_slot_first():
+    q = RefineQueue()
+    order: list[int] = []
+    with q.hold(VALIDATION):
+        threads = []
+        for level in (VALIDATION, ANCHOR, BEST, MONITOR, ANCHOR):
+            threads.append(_waiter(q, level, order))
+            _until(lambda: len(q._waiting) == len(threads))
+        assert q.monitoring_due == 1
+    for t in threads:
+        t.join(10)
+    assert order == [MONITOR, BEST, ANCHOR, ANCHOR, VALIDATION]
+    assert q.monitoring_due == 0 and not q._waiting and q._held_by is None
+
+
+def test_a_waiter_that_gives_way_does_not_run_and_does_not_block_the_others():
+    q = RefineQueue()
+    order: list[int] = []
+    give_way = threading.Event()
+    with q.hold(MONITOR):
+        anchor = _waiter(q, ANCHOR, order, abandon=give_way.is_set)
+        _until(lambda: len(q._waiting) == 1)
+        give_way.set()                       # its system got a record to fit
+        anchor.join(10)
+        assert not anchor.is_alive() and not q._waiting
+        validation = _waiter(q, VALIDATION, order)
+        _until(lambda: len(q._waiting) == 1)
+    validation.join(10)
+    assert order == [VALIDATION]
+
+
+def test_the_plain_lock_protocol_still_works():
+    q = RefineQueue()
+    with q:
+        assert q._held_by is not None
+    assert q._held_by is None
+
+
+def test_trainers_wait_while_a_record_is_fitted_and_go_on_after():
+    q = RefineQueue()
+    assert q.yield_to_monitoring(5.0) == 0.0          # nothing to yield to: no wait
+    fitting, done = threading.Event(), threading.Event()
+
+    def fit() -> None:
+        with q.hold(MONITOR):
+            fitting.set()
+            done.wait(10)
+    t = threading.Thread(target=fit, daemon=True)
+    t.start()
+    fitting.wait(10)
+    waited: list[float] = []
+    trainer = threading.Thread(target=lambda: waited.append(q.yield_to_monitoring(30.0)),
+                               daemon=True)
+    trainer.start()
+    time.sleep(0.2)
+    assert trainer.is_alive()                         # the trainer yields ...
+    done.set()
+    trainer.join(10)
+    t.join(10)
+    assert not trainer.is_alive() and waited and waited[0] < 30.0   # ... until the fit ends
+
+
+def test_a_trainer_yields_at_most_max_wait():
+    q = RefineQueue()
+    release = threading.Event()
+
+    def fit() -> None:
+        with q.hold(MONITOR):
+            release.wait(30)
+    t = threading.Thread(target=fit, daemon=True)
+    t.start()
+    _until(lambda: q.monitoring_due == 1)
+    waited = q.yield_to_monitoring(0.3)
+    assert 0.3 <= waited < 30.0 and q.monitoring_due == 1   # bounded: still fitting
+    stop = threading.Event()
+    stop.set()
+    assert q.yield_to_monitoring(30.0, stop) < 30.0   # a stopping trainer does not wait
+    release.set()
+    t.join(10)
