@@ -13,8 +13,9 @@ small (~1 CPU-s) and is what a monitoring user waits for; so, process-wide:
   a level), and a waiter may give up its turn (``abandon``: its own system got a record
   to fit, which then goes first; the re-anchor, coalescing, runs after);
 * :meth:`RefineQueue.yield_to_monitoring`: a trainer waits before its next epoch while a
-  per-record fit waits or runs, at most ``max_wait`` seconds, so that every estimate keeps
-  being published (the ensemble still updates; ``SIVA_MONITOR_YIELD_S``).
+  per-record fit (or a system's first ``best``, which starts its monitoring) waits or
+  runs, at most ``max_wait`` seconds, so that every estimate keeps being published (the
+  ensemble still updates; ``SIVA_MONITOR_YIELD_S``).
 
 The trainer thread of a system never holds the slot, so no deadlock is possible.
 """
@@ -28,6 +29,8 @@ from contextlib import contextmanager
 from typing import Callable, Iterator
 
 MONITOR, BEST, ANCHOR, VALIDATION = 0, 1, 2, 3
+#: the levels trainers yield to: a per-record fit, a first best (it starts the monitoring)
+URGENT = BEST
 #: how often a waiter re-checks ``abandon`` and a yielding trainer its stop event
 POLL_S = 0.25
 
@@ -40,7 +43,7 @@ class RefineQueue:
         self._held_by: tuple[int, int] | None = None
         self._waiting: list[tuple[int, int]] = []     # heap of (priority, ticket)
         self._tickets = itertools.count()
-        self._monitoring = 0                           # monitoring fits waiting or running
+        self._monitoring = 0                           # urgent work waiting or running
 
     @contextmanager
     def hold(self, priority: int = VALIDATION,
@@ -58,7 +61,7 @@ class RefineQueue:
         key = (priority, next(self._tickets))
         with self._cv:
             heapq.heappush(self._waiting, key)
-            if priority == MONITOR:
+            if priority <= URGENT:
                 self._monitoring += 1
             try:
                 while self._held_by is not None or self._waiting[0] != key:
@@ -77,14 +80,14 @@ class RefineQueue:
         """(under the condition) forget a waiter that will not run."""
         self._waiting.remove(key)
         heapq.heapify(self._waiting)
-        if key[0] == MONITOR:
+        if key[0] <= URGENT:
             self._monitoring -= 1
         self._cv.notify_all()
 
     def _release(self, key: tuple[int, int]) -> None:
         with self._cv:
             self._held_by = None
-            if key[0] == MONITOR:
+            if key[0] <= URGENT:
                 self._monitoring -= 1
             self._cv.notify_all()
 
@@ -97,12 +100,12 @@ class RefineQueue:
 
     @property
     def monitoring_due(self) -> int:
-        """Per-record fits waiting for or holding the slot."""
+        """Per-record fits and first bests waiting for or holding the slot."""
         return self._monitoring
 
     def yield_to_monitoring(self, max_wait: float, stop: threading.Event | None = None) -> float:
-        """A trainer, between two epochs: wait while a per-record fit waits or runs, at
-        most ``max_wait`` s; returns the seconds waited."""
+        """A trainer, between two epochs: wait while a per-record fit or a first best waits
+        or runs, at most ``max_wait`` s; returns the seconds waited."""
         if max_wait <= 0 or self._monitoring <= 0:
             return 0.0
         t0 = time.monotonic()

@@ -3,10 +3,10 @@
 Per system, one daemon thread empties these slots, in this order:
 
 1. a ``best`` job: the first output-error estimate (``siva_core.recommend_best``:
-   Approach III over the equation-error ensemble, then the output-error refinement), and
-   the output-error phase's first anchor, linearised at it (``anchoring.py``);
+   Approach III over the equation-error ensemble, then the output-error refinement);
 2. the per-record monitoring (``step``: one output-error fit per new record, the
-   headline and the drift test), until no record is left;
+   headline and the drift test), until no record is left; then the output-error phase's
+   first anchor, linearised at the first ``best`` (``anchoring.py``);
 3. an ``anchor`` job: after the data changed, the linearisation at the current headline
    (so the headline already includes the new records);
 4. a validation job: ``validation.py``'s test of the headline and the ensemble.
@@ -66,6 +66,7 @@ class Refiner:
         self._best_job: RefineJob | None = None
         self._anchor_job: RefineJob | None = None
         self._validation: ValidationJob | None = None
+        self._first_anchor: tuple[RefineJob, np.ndarray] | None = None  # at the first best
         self._thread = threading.Thread(target=self._loop, name=f"siva-refine-{name}",
                                         daemon=True)
 
@@ -112,6 +113,7 @@ class Refiner:
         while not self._stop.is_set():
             with self._cv:
                 while (self._best_job is None and self._anchor_job is None
+                       and self._first_anchor is None
                        and self._validation is None and not self._poked
                        and not self._stop.is_set()):
                     self._cv.wait(30.0)
@@ -122,6 +124,9 @@ class Refiner:
             if best_job is not None:
                 self._guarded(lambda: self._run_best(best_job), "refinement")
             self._monitor()
+            first, self._first_anchor = self._first_anchor, None
+            if first is not None:  # after the records are fitted (the monitoring starts)
+                self._guarded(lambda: self._run_first_anchor(*first), "anchoring")
             with self._cv:
                 anchor_job, self._anchor_job = self._anchor_job, None
                 vjob, self._validation = self._validation, None
@@ -191,28 +196,34 @@ class Refiner:
                     approach_III=self.structure.as_dict(rec.theta_III),
                     n_candidates=int(len(job.candidates)), seconds=seconds)
         self._on_best(best, job)
-        if job.anchor:
-            self._anchor(job, best.theta(self.structure.free), "best")
+        if job.anchor:  # linearised at it once the stored records are fitted (_loop)
+            self._first_anchor = (job, best.theta(self.structure.free))
+
+    def _run_first_anchor(self, job: RefineJob, theta: np.ndarray) -> None:
+        if not self._anchor(job, theta, "best", gives_way=True):
+            self._first_anchor = (job, theta)  # after the record that arrived meanwhile
 
     def _run_anchor(self, job: RefineJob) -> None:
         theta = job.theta if job.theta is not None else self._headline_theta()
         if theta is None:
             return
-        self._anchor(job, theta, "headline" if job.theta is None else "given",
-                     gives_way=job.theta is None)
+        at_headline = job.theta is None
+        if not self._anchor(job, theta, "headline" if at_headline else "given",
+                            gives_way=at_headline, at_headline=at_headline):
+            self._requeue(anchor=job)
 
     def _anchor(self, job: RefineJob, theta: np.ndarray, source: str,
-                gives_way: bool = False) -> None:
-        """The linearisation at ``theta``; a re-anchor at the headline (``gives_way``) lets
-        a new record of its system be fitted first and then runs at the newer headline."""
+                gives_way: bool = False, at_headline: bool = False) -> bool:
+        """The linearisation at ``theta`` (``at_headline``: at the headline as it is when
+        the work starts).  ``gives_way``: while waiting for its turn, a new record of this
+        system goes first - returns False without anchoring (the caller re-queues)."""
         t0 = time.perf_counter()
         with REFINE_LOCK.hold(ANCHOR, self._gives_way if gives_way else None) as turn:
             if not turn:
-                self._requeue(anchor=job)
-                return
+                return self._stop.is_set()
             if self._stop.is_set():
-                return
-            if gives_way:  # the headline as it is now (records fitted while waiting)
+                return True
+            if at_headline:  # records fitted while waiting moved it
                 now = self._headline_theta()
                 theta = theta if now is None else now
             anchor = build_anchor(self.structure, theta, job.data, job.train_records,
@@ -221,6 +232,7 @@ class Refiner:
         log.info("%s: output-error anchor (%s) on %d+%d record(s) in %.1f s", self.name,
                  source, len(job.train_records), len(job.val_records), time.perf_counter() - t0)
         self._on_anchor(anchor)
+        return True
 
     def _run_validation(self, job: ValidationJob) -> None:
         proc = job.data.processing if job.data.processing is not None else Processing()

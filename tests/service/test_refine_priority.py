@@ -37,7 +37,7 @@ def test_the_most_urgent_waiter_gets_the_slot_first():
         for level in (VALIDATION, ANCHOR, BEST, MONITOR, ANCHOR):
             threads.append(_waiter(q, level, order))
             _until(lambda: len(q._waiting) == len(threads))
-        assert q.monitoring_due == 1
+        assert q.monitoring_due == 2          # the fit and the first best
     for t in threads:
         t.join(10)
     assert order == [MONITOR, BEST, ANCHOR, ANCHOR, VALIDATION]
@@ -108,3 +108,59 @@ def test_a_trainer_yields_at_most_max_wait():
     assert q.yield_to_monitoring(30.0, stop) < 30.0   # a stopping trainer does not wait
     release.set()
     t.join(10)
+
+
+def test_a_waiting_reanchor_gives_way_to_its_systems_new_record_then_runs_at_the_new_headline(
+        monkeypatch):
+    """Refiner: a re-anchor queued behind another system's fit lets a record of its own
+    system be fitted first, then anchors once, at the headline that fit produced."""
+    import numpy as np
+
+    from service.trainer import refiner as refiner_mod
+    from service.trainer.types import DataSet, RefineJob
+
+    events: list[str] = []
+    headline = [np.array([1.0])]
+    monkeypatch.setattr(refiner_mod, "build_anchor",
+                        lambda structure, theta, *a, **kw: events.append(f"anchor {theta[0]}"))
+    due = {"records": 0}
+
+    def step() -> bool:                       # the per-record fit (monitoring.py's step)
+        if due["records"] == 0:
+            return False
+        due["records"] -= 1
+        headline[0] = headline[0] + 1.0
+        events.append("fit")
+        return True
+
+    r = refiner_mod.Refiner("s", structure=None, on_best=lambda *a: None,
+                            on_anchor=lambda a: None, on_verdicts=lambda *a: None,
+                            on_error=lambda m: events.append(f"error {m}"),
+                            headline_theta=lambda: headline[0], step=step)
+    ds = DataSet(1, 0, ("a",), ("b",), None)
+    job = RefineJob("anchor", ds, 0, (), (), 0, 0)
+    q = refiner_mod.REFINE_LOCK
+    other_fit_done = threading.Event()
+    other_fit_started = threading.Event()
+
+    def other_systems_fit() -> None:
+        with q.hold(MONITOR):
+            other_fit_started.set()
+            other_fit_done.wait(10)
+    blocker = threading.Thread(target=other_systems_fit, daemon=True)
+    blocker.start()
+    other_fit_started.wait(10)
+    r.start()
+    try:
+        r.submit(job)
+        _until(lambda: any(k[0] == ANCHOR for k in q._waiting))   # the re-anchor waits
+        due["records"] = 1
+        r.poke()                                                    # a record arrives
+        _until(lambda: events == ["fit"])     # only possible if the re-anchor gave way
+        other_fit_done.set()
+        _until(lambda: len(events) == 2)
+        assert events == ["fit", "anchor 2.0"]                      # once, at the new headline
+    finally:
+        other_fit_done.set()
+        r.stop(5.0)
+        blocker.join(5)
