@@ -87,7 +87,7 @@ class Settings:
     checkpoint_every_s: float = 30.0    # seconds between durable trainer checkpoints
     idle_sleep_s: float = 0.5           # wait when there is nothing to train on
     epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
-    monitor_yield_s: float = 5.0        # trainers wait this long at most per epoch while a
+    monitor_yield_s: float = 15.0       # trainers wait this long at most per epoch while a
                                         # per-record fit (any system's) runs; 0: never
     # Drift detection (service/detector.py: CUSUM on per-record estimates).
     history_limit: int = 2000           # snapshots / per-record estimates kept
