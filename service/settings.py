@@ -28,6 +28,7 @@ ENV_VARS: dict[str, str] = {
     "SIVA_IDLE_SLEEP_S": "idle_sleep_s",
     "SIVA_EPOCH_PAUSE_S": "epoch_pause_s",
     "SIVA_MONITOR_YIELD_S": "monitor_yield_s",
+    "SIVA_MONITOR_FITS": "monitor_fits",
     "SIVA_HISTORY_LIMIT": "history_limit",
     "SIVA_DRIFT_CONSECUTIVE": "drift_consecutive",
     "SIVA_DRIFT_REL_TOL": "drift_rel_tol",
@@ -89,6 +90,7 @@ class Settings:
     epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
     monitor_yield_s: float = 15.0       # trainers wait this long at most per epoch while a
                                         # per-record fit (any system's) runs; 0: never
+    monitor_fits: int = 2               # per-record fits of different systems at once
     # Drift detection (service/detector.py: CUSUM on per-record estimates).
     history_limit: int = 2000           # snapshots / per-record estimates kept
     drift_baseline_records: int = 10    # first records forming the reference
@@ -142,6 +144,7 @@ class Settings:
                     "auto_validation_every", "snapshot_every", "history_limit",
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
                     "refine_candidates", "drift_baseline_records", "headline_window",
+                    "monitor_fits",
                     "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
                     "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor",
                     "max_concurrent_uploads", "upload_bytes_in_flight")

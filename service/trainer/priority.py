@@ -10,7 +10,8 @@ small (~1 CPU-s) and is what a monitoring user waits for; so, process-wide:
 
 * :meth:`RefineQueue.hold` grants the refinement slot to the most urgent waiter first
   (``MONITOR`` < ``BEST`` < ``ANCHOR`` < ``VALIDATION``; first come, first served within
-  a level), and a waiter may give up its turn (``abandon``: its own system got a record
+  a level; up to ``SIVA_MONITOR_FITS`` per-record fits of different systems at once), and
+  a waiter may give up its turn (``abandon``: its own system got a record
   to fit, which then goes first; the re-anchor, coalescing, runs after);
 * :meth:`RefineQueue.yield_to_monitoring`: a trainer waits before its next epoch while a
   per-record fit (or a system's first ``best``, which starts its monitoring) waits or
@@ -35,15 +36,47 @@ URGENT = BEST
 POLL_S = 0.25
 
 
-class RefineQueue:
-    """One refinement at a time in the process, the most urgent first."""
+def numba_runs_concurrently() -> bool:
+    """True when numba's threading layer accepts parallel kernels launched from several
+    threads at once (omp, tbb; not workqueue), known once a parallel kernel has run."""
+    try:
+        import numba
 
-    def __init__(self) -> None:
+        return numba.threading_layer() in ("omp", "tbb")
+    except Exception:  # noqa: BLE001 - not initialised yet, or no numba: one at a time
+        return False
+
+
+class RefineQueue:
+    """The refinement slot of the process, the most urgent first.  Work is exclusive,
+    except per-record fits: up to ``monitor_fits`` of them (of different systems) run at
+    once when numba allows it - a fit is mostly single-threaded, so one at a time would
+    leave a core idle, or under load get one thread's share of the machine."""
+
+    def __init__(self, monitor_fits: int = 1,
+                 concurrent: Callable[[], bool] = numba_runs_concurrently) -> None:
         self._cv = threading.Condition()
-        self._held_by: tuple[int, int] | None = None
+        self._running: set[tuple[int, int]] = set()
         self._waiting: list[tuple[int, int]] = []     # heap of (priority, ticket)
         self._tickets = itertools.count()
         self._monitoring = 0                           # urgent work waiting or running
+        self.monitor_fits = max(1, int(monitor_fits))
+        self._concurrent = concurrent
+        self._concurrent_known = False
+
+    def _may_run(self, key: tuple[int, int]) -> bool:
+        """(under the condition) ``key`` is the most urgent waiter and the slot allows it."""
+        if self._waiting[0] != key:
+            return False
+        if not self._running:
+            return True
+        if key[0] != MONITOR or any(k[0] != MONITOR for k in self._running):
+            return False
+        if len(self._running) >= self.monitor_fits:
+            return False
+        if not self._concurrent_known:
+            self._concurrent_known = self._concurrent()
+        return self._concurrent_known
 
     @contextmanager
     def hold(self, priority: int = VALIDATION,
@@ -64,7 +97,7 @@ class RefineQueue:
             if priority <= URGENT:
                 self._monitoring += 1
             try:
-                while self._held_by is not None or self._waiting[0] != key:
+                while not self._may_run(key):
                     if abandon is not None and abandon():
                         self._drop(key)
                         return None
@@ -73,7 +106,8 @@ class RefineQueue:
                 self._drop(key)
                 raise
             heapq.heappop(self._waiting)
-            self._held_by = key
+            self._running.add(key)
+            self._cv.notify_all()  # the next fit may join
             return key
 
     def _drop(self, key: tuple[int, int]) -> None:
@@ -86,7 +120,7 @@ class RefineQueue:
 
     def _release(self, key: tuple[int, int]) -> None:
         with self._cv:
-            self._held_by = None
+            self._running.discard(key)
             if key[0] <= URGENT:
                 self._monitoring -= 1
             self._cv.notify_all()

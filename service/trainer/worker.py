@@ -73,6 +73,7 @@ class SystemWorker:
         self.feed = DataFeed(name, structure, store, settings)
         self.history = EstimateHistory(settings.history_limit)
         self.monitoring = Monitoring(name, structure, store, settings)
+        REFINE_LOCK.monitor_fits = settings.monitor_fits  # the process's setting
         self.monitor = self.monitoring.monitor
         self._snap_lock = threading.Lock()
         self._stop = threading.Event()

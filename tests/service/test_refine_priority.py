@@ -41,7 +41,7 @@ def test_the_most_urgent_waiter_gets_the_slot_first():
     for t in threads:
         t.join(10)
     assert order == [MONITOR, BEST, ANCHOR, ANCHOR, VALIDATION]
-    assert q.monitoring_due == 0 and not q._waiting and q._held_by is None
+    assert q.monitoring_due == 0 and not q._waiting and not q._running
 
 
 def test_a_waiter_that_gives_way_does_not_run_and_does_not_block_the_others():
@@ -63,8 +63,54 @@ def test_a_waiter_that_gives_way_does_not_run_and_does_not_block_the_others():
 def test_the_plain_lock_protocol_still_works():
     q = RefineQueue()
     with q:
-        assert q._held_by is not None
-    assert q._held_by is None
+        assert q._running
+    assert not q._running
+
+
+def test_fits_of_different_systems_run_together_other_work_alone():
+    q = RefineQueue(monitor_fits=2, concurrent=lambda: True)
+    inside, release = threading.Event(), threading.Event()
+    order: list[int] = []
+
+    def fit() -> None:
+        with q.hold(MONITOR):
+            inside.set()
+            release.wait(10)
+    first = threading.Thread(target=fit, daemon=True)
+    first.start()
+    inside.wait(10)
+    anchor = _waiter(q, ANCHOR, order)               # waits: a fit runs
+    _until(lambda: len(q._waiting) == 1)
+    second = threading.Thread(target=fit, daemon=True)
+    second.start()                                   # a second fit joins the first ...
+    _until(lambda: len(q._running) == 2)
+    third = _waiter(q, MONITOR, order)               # ... a third waits (2 at once)
+    _until(lambda: len(q._waiting) == 2)
+    assert order == [] and q.monitoring_due == 3
+    release.set()
+    for t in (first, second, third, anchor):
+        t.join(10)
+    assert order == [MONITOR, ANCHOR] and not q._running
+
+
+def test_fits_run_one_at_a_time_when_numba_cannot_run_them_together():
+    q = RefineQueue(monitor_fits=2, concurrent=lambda: False)
+    release = threading.Event()
+
+    def fit() -> None:
+        with q.hold(MONITOR):
+            release.wait(10)
+    first = threading.Thread(target=fit, daemon=True)
+    first.start()
+    _until(lambda: len(q._running) == 1)
+    second = threading.Thread(target=fit, daemon=True)
+    second.start()
+    _until(lambda: len(q._waiting) == 1)
+    assert len(q._running) == 1
+    release.set()
+    first.join(10)
+    second.join(10)
+    assert not q._running
 
 
 def test_trainers_wait_while_a_record_is_fitted_and_go_on_after():
