@@ -65,8 +65,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _fleet_report import (machine, marginal_memory, must_show,  # noqa: E402,F401
-                           sparse_table, table, write_json)
+from _fleet_report import (machine, marginal_memory, monitoring_verdict,  # noqa: E402,F401
+                           must_show, sparse_table, table, write_json)
 from _fleet_processes import (GROUPS, LocalRayCluster, ProcessMeter, ServerProcess,  # noqa: E402
                               machine_busy_seconds, total, unhandled_errors)
 from clients import SivaClient, SivaClientError  # noqa: E402
