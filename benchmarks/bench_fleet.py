@@ -400,7 +400,7 @@ def _warm_and_measure(case: Case, client: SivaClient, meter: ProcessMeter, names
         if not hosts:
             raise RuntimeError("SIVA_EXECUTOR=ray but no Ray trainer-host process "
                                f"({'ray::TrainerHost'}) appeared: does this checkout have the "
-                               "ray executor (service/ray_executor.py)?")
+                               "ray executor (service/fleet/ray_executor.py)?")
 
     def all_started() -> bool:
         states = fleet_states(client)

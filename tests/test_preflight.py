@@ -159,3 +159,21 @@ def test_cli_refuses_before_training(tmp_path, lono, impact, case):
     assert "epoch" not in proc.stderr
     assert "train.csv" in proc.stderr or "val.csv" in proc.stderr
     assert any(w in proc.stderr for w in ("--map", "--resample", "record at", "record faster"))
+
+
+def test_friction_near_nyquist_is_kept_but_an_unresolved_mode_refused(lono, impact):
+    """Coulomb friction's jumps put strong broadband content up to Nyquist in a well-sampled
+    record (found on a friction rig's 37 N hit, refused as 'aliased' by the service): it is
+    reported, not refused, while a record whose dominant resonance is not resolved is."""
+    spec = dict(lono.spec)
+    spec["elements"] = list(spec["elements"]) + [
+        {"kind": "coulomb", "between": ["NO", "ground"], "params": {"fc": 1.0}}]
+    rig = Structure.from_dict(spec)
+    hit = synthetic_impacts(rig, THETA, [37.0], dof="NO", fs=2048.0, duration=4.0, seed=3)[0]
+    found = check_recording(lono, hit)
+    assert not [p for p in found if p.fatal], found
+    assert [p for p in found if p.check == "aliased" and "friction" in p.message], found
+    preflight(lono, [impact], [hit])  # accepted, with the warning
+    coarse = Recording(impact.time[::64].copy(),
+                       {k: v[::64].copy() for k, v in impact.channels.items()}, "coarse.csv")
+    assert [p for p in check_recording(lono, coarse) if p.fatal]

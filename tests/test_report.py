@@ -11,8 +11,11 @@ from siva_core import Recording, Siva, Structure
 from synthetic import SDOF, TRUE, free_decay
 from siva_core import cwt, dominant_frequency, fourier_amplitude, frequency_band, write_report
 
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
+
+
 def fitted() -> tuple[Siva, list[Recording], list[Recording]]:
     st = Structure.from_dict(SDOF)
     train, val = [free_decay(1.0)], [free_decay(0.5), free_decay(2.0)]
@@ -60,7 +63,7 @@ def test_report_writes_every_figure_and_an_index(fitted, tmp_path):
 def test_report_without_raw_recordings_simulates_the_processed_states(fitted):
     """Without raw recordings (as ``siva identify --report`` may call it) every training and
     validation record is still drawn, from its processed states, and says so."""
-    from siva_core._impl.report import _records, _simulate_record
+    from siva_core._impl.report.simulations import records_to_draw, simulate_record
 
     est, _, _ = fitted
 
@@ -71,10 +74,10 @@ def test_report_without_raw_recordings_simulates_the_processed_states(fitted):
         train_states_ = est.train_states_
         val_states_ = est.val_states_
 
-    recs, note = _records(_Bare, None, None)
+    recs, note = records_to_draw(_Bare, None, None)
     assert [role for _, role in recs] == ["training", "validation", "validation"]
     assert note and "processed states" in note
-    rs = _simulate_record(_Bare, est.result_, recs[2][0], "validation", n_sims=5)
+    rs = simulate_record(_Bare, est.result_, recs[2][0], "validation", n_sims=5)
     assert np.allclose(rs.measured, est.val_states_[1].q * 1e3)
     assert rs.band_sims.shape[1:] == rs.measured.shape and len(rs.band_sims) + rs.n_diverged == 5
     assert set(rs.points) == {"approach_I", "approach_II", "approach_III", "best"}
@@ -83,7 +86,7 @@ def test_report_without_raw_recordings_simulates_the_processed_states(fitted):
 def test_report_simulations_match_the_measurement_at_the_truth(fitted):
     """The simulated and measured displacements are aligned sample by sample: the exact
     parameters reproduce every record (a time shift or a unit slip would not)."""
-    from siva_core._impl.report import _simulate_record
+    from siva_core._impl.report.simulations import simulate_record
 
     est, train, val = fitted
     res = est.result_
@@ -99,7 +102,7 @@ def test_report_simulations_match_the_measurement_at_the_truth(fitted):
             return {k: exact for k in ("approach_I", "approach_II", "approach_III", "best")}
 
     for rec, role in [(train[0], "training"), (val[1], "validation")]:
-        rs = _simulate_record(est, _Res, rec, role, n_sims=3)
+        rs = simulate_record(est, _Res, rec, role, n_sims=3)
         scale = np.sqrt(np.mean(rs.measured ** 2))
         assert rs.band_sims.shape == (3, len(rec), 1) and rs.n_diverged == 0
         assert np.isclose(rs.measured[:, 0], rec.get("disp", "x") * 1e3).all()  # in mm
@@ -178,7 +181,7 @@ def test_parameter_units_come_from_the_element_kinds():
 def test_parameters_figure_keeps_best_on_the_axis(fitted):
     """best (and its 95 % interval) far outside what the epochs visited is still drawn
     inside the axis (alpha and beta of LO-NO fell off it)."""
-    from siva_core._impl.report import _fig_parameters
+    from siva_core._impl.report.training_figures import fig_parameters
 
     est, _, _ = fitted
     res = est.result_
@@ -191,7 +194,7 @@ def test_parameters_figure_keeps_best_on_the_axis(fitted):
         best = far
         best_std = np.abs(far) * 0.01
 
-    fig = _fig_parameters(_Res, names, None, None, est.structure.parameter_units())
+    fig = fig_parameters(_Res, names, None, None, est.structure.parameter_units())
     for k, ax in enumerate(fig.axes[:len(names)]):
         lo, hi = ax.get_ylim()
         assert lo <= far[k] * 0.98 and far[k] * 1.02 <= hi, (names[k], (lo, hi), far[k])
@@ -199,10 +202,10 @@ def test_parameters_figure_keeps_best_on_the_axis(fitted):
 
 
 def test_report_table_says_which_value_to_use_with_units(fitted):
-    from siva_core._impl.report import _html
+    from siva_core._impl.report.page import page_html
 
     est, _, _ = fitted
-    page = _html(est, est.result_, list(est.result_.names), None, [], [], None)
+    page = page_html(est, est.result_, list(est.result_.names), None, [], [], None)
     assert "Use <code>best</code>" in page
     assert "N/m" in page and "N/(m/s)" in page
     assert not re.search(r"(\d\S*) \[\1, \1\]", page)  # no "0.5 [0.5, 0.5]"
@@ -213,18 +216,18 @@ def test_a_rejected_model_is_shown_rejected_at_the_top(fitted):
     rejected model's values are not presented as the ones to use."""
     import copy
 
-    from siva_core._impl.report import _html
+    from siva_core._impl.report.page import page_html
 
     est, _, _ = fitted
     res = copy.copy(est.result_)
     res.metrics = {**res.metrics, "validation_test": {"best": {
         "statistic": 6.8, "accepted": False, "p_value": 0.0,
         "records": {"held.csv": {"statistic": 6.8}}}}}
-    page = _html(est, res, list(res.names), None, [], [], None)
+    page = page_html(est, res, list(res.names), None, [], [], None)
     assert "REJECTED" in page and "T = 6.8" in page and "siva diagnose" in page
     assert page.index('id="verdict"') < page.index("<h2>Parameters")
     assert "Use <code>best</code>" not in page and "NOT validated" in page
     res.metrics = {**res.metrics, "validation_test": {"best": {
         "statistic": 1.05, "accepted": True, "p_value": 0.6, "records": {}}}}
-    page = _html(est, res, list(res.names), None, [], [], None)
+    page = page_html(est, res, list(res.names), None, [], [], None)
     assert "ACCEPTED" in page and "Use <code>best</code>" in page

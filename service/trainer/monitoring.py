@@ -14,11 +14,12 @@ import numpy as np
 
 from siva_core import Processing, Recording, RecordingError, Structure
 
-from ..detector import DetectorSettings
-from ..estimate import jsonable
-from ..monitor import RecordMonitor
+from ..errors import UnknownSystem
+from ..monitoring.detector import DetectorSettings
+from ..monitoring.monitor import RecordMonitor
 from ..settings import Settings
-from ..store import Store, UnknownSystem
+from ..storage.store import Store
+from .estimate import jsonable
 from .priority import MONITOR
 from .refiner import REFINE_LOCK
 

@@ -12,7 +12,9 @@ The checks (docs/formats.md, "Checks before training"):
   the current estimate in the service) the highest linear mode must lie below Nyquist with
   at least ``MIN_SAMPLES_PER_PERIOD`` samples per period; from the data alone, a hammer
   pulse must span ``MIN_PULSE_SAMPLES`` samples and the strong response content must stay
-  below ``MAX_CONTENT_FRACTION`` x fs (an aliased record shows its folded modes there).
+  below ``MAX_CONTENT_FRACTION`` x fs (an aliased record shows its folded modes there) —
+  refused when the dominant resonance itself is unresolved, else a warning (friction and
+  impacts also put strong content near Nyquist).
 - **mixed rates**: every record of one fit (or one service system) has the same sampling
   rate, unless resampling is asked for (``--resample``: to the lowest rate).
 - **clipping**: a response or force channel that sits at its extreme value for
@@ -273,14 +275,22 @@ def _check_sampling(structure: Structure, rec: Recording, modes: Sequence[float]
                                    f"{fs:.6g} Hz; at least {MIN_PULSE_SAMPLES} are needed to "
                                    f"know its impulse: record faster (or check the file's "
                                    f"time step)"))
-    f_hi = _strong_content(rec, structure)
-    if f_hi is not None and f_hi > MAX_CONTENT_FRACTION * fs and not out:
+    content = _strong_content(rec, structure)
+    if content is not None and content[1] > MAX_CONTENT_FRACTION * fs and not out:
+        f_peak, f_hi = content
+        # The dominant resonance resolved (>= MIN_SAMPLES_PER_PERIOD samples per period, or
+        # the model's known modes are): strong content near Nyquist is then as likely an
+        # unmodelled nonlinearity (friction's jumps, impacts) as a folded higher mode, so
+        # it is reported, not refused.  An unresolved dominant peak is refused.
+        resolved = f_peak * MIN_SAMPLES_PER_PERIOD <= fs or bool(modes)
+        tail = ("kept: it may also be friction or impacts, which the diagnosis can name"
+                if resolved else "record at "
+                f"{MIN_SAMPLES_PER_PERIOD * f_hi:.0f} Hz or more (or check the file's time step)")
         out.append(Problem(rec.name, "aliased",
                            f"{rec.name}: strong response at {f_hi:.4g} Hz, "
                            f"{fs / f_hi:.1f} samples per period at {fs:.6g} Hz (Nyquist "
-                           f"{fs / 2:.6g} Hz): the record is aliased or too coarsely sampled; "
-                           f"record at {MIN_SAMPLES_PER_PERIOD * f_hi:.0f} Hz or more (or "
-                           f"check the file's time step)"))
+                           f"{fs / 2:.6g} Hz): the record may be aliased or too coarsely "
+                           f"sampled; {tail}", fatal=not resolved))
     return out
 
 
@@ -292,10 +302,10 @@ def _spectrum(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     return f, amp
 
 
-def _strong_content(rec: Recording, structure: Structure) -> float | None:
-    """Highest frequency [Hz] whose smoothed response amplitude reaches 10 % of the
-    spectrum's peak, over the DOFs (None without a response)."""
-    top = None
+def _strong_content(rec: Recording, structure: Structure) -> tuple[float, float] | None:
+    """(frequency of the spectrum's peak, highest frequency whose smoothed response
+    amplitude reaches 10 % of that peak) [Hz], over the DOFs (None without a response)."""
+    peak_amp, f_peak, top = 0.0, 0.0, None
     for _, x in _responses(structure, rec):
         if len(x) < 16:
             continue
@@ -305,10 +315,12 @@ def _strong_content(rec: Recording, structure: Structure) -> float | None:
         smooth = np.convolve(amp, np.ones(k) / k, mode="same")
         if not smooth.max() > 0:
             continue
+        if smooth.max() > peak_amp:
+            peak_amp, f_peak = float(smooth.max()), float(f[int(np.argmax(smooth))])
         strong = np.flatnonzero(smooth >= 0.1 * smooth.max())
         fh = float(f[strong[-1]])
         top = fh if top is None else max(top, fh)
-    return top
+    return None if top is None else (f_peak, top)
 
 
 def _check_clipping(structure: Structure, rec: Recording) -> list[Problem]:
