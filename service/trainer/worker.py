@@ -53,7 +53,7 @@ from .lifecycle import Lifecycle
 from .monitoring import Monitoring
 from .phases import PhaseSteps
 from .publishing import Publishing
-from .refiner import Refiner
+from .refiner import REFINE_LOCK, Refiner
 from .types import Anchor, Best, DataSet, Verdict
 
 log = logging.getLogger("siva.service.worker")
@@ -74,6 +74,7 @@ class SystemWorker(Lifecycle, PhaseSteps, Publishing):
         self.feed = DataFeed(name, structure, store, settings)
         self.history = EstimateHistory(settings.history_limit)
         self.monitoring = Monitoring(name, structure, store, settings)
+        REFINE_LOCK.monitor_fits = settings.monitor_fits  # the process's setting
         self.monitor = self.monitoring.monitor
         self._snap_lock = threading.Lock()
         self._stop = threading.Event()
@@ -217,6 +218,8 @@ class SystemWorker(Lifecycle, PhaseSteps, Publishing):
                 self._wake.clear()
                 continue
             self._apply_pending_anchor()
+            # a per-record fit of any system goes first (priority.py), within a bound
+            REFINE_LOCK.yield_to_monitoring(self.settings.monitor_yield_s, self._stop)
             try:
                 t0 = time.perf_counter()
                 elog = self.trainer.run_epoch()
