@@ -25,7 +25,7 @@ import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
 CLUSTER_SCRIPT = ROOT / "scripts" / "ray-local-cluster.sh"
-#: the process title of a trainer-host actor (service/ray_host.py ``TrainerHost``)
+#: the process title of a trainer-host actor (service/fleet/ray_host.py ``TrainerHost``)
 TRAINER_HOST_MARK = "ray::TrainerHost"
 GROUPS = ("server", "trainer_hosts", "ray_daemons")
 

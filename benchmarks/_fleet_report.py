@@ -34,8 +34,15 @@ ROWS: list[tuple[str, Callable[[dict[str, Any]], str]]] = [
     ("  same, snapshot's own time p95",
      lambda r: fnum(r["record_to_estimate_s"]["published_p95"])),
     ("record->monitored p50 [s]", lambda r: fnum(r["record_to_monitored_s"]["p50"])),
+    ("record->monitored p95 [s]", lambda r: fnum(r["record_to_monitored_s"]["p95"])),
     ("  monitored / acknowledged",
      lambda r: f"{r['record_to_monitored_s']['n']}/{acknowledged(r)}"),
+    ("  fitted ok (drift report) / ackn.",
+     lambda r: f"{r['record_to_monitored_s'].get('fitted_ok', '-')}/{acknowledged(r)}"),
+    ("  per-record fit p50 [s]",
+     lambda r: fnum(r["record_to_monitored_s"].get("fit_seconds_p50"), ".2f")),
+    ("onboarded (first best) [s]",
+     lambda r: f"{fnum(r.get('onboarding_s'), '.0f')} ({r.get('onboarded', '-')}/{r['n_systems']})"),
     ("max gap between updates [s]", lambda r: fnum(r["max_update_gap_s"])),
     ("upload 202 p50 [s]", lambda r: fnum(r["upload_ack_s"]["p50"], ".2f")),
     ("upload 202 p95 [s]", lambda r: fnum(r["upload_ack_s"]["p95"], ".2f")),
@@ -98,7 +105,21 @@ def must_show(results: list[dict[str, Any]], limit_s: float = 60.0) -> list[str]
         out.append(f"{r['executor']} N={r['n_systems']}: every system's estimate updated at "
                    f"least once per {limit_s:.0f} s: {'yes' if ok else 'NO'} "
                    f"(longest gap {fnum(gap)} s)")
+        out.append(monitoring_verdict(r, limit_s))
     return out
+
+
+def monitoring_verdict(r: dict[str, Any], limit_s: float = 60.0) -> str:
+    """Issue 18's must-show 5: record -> monitored p95 <= ``limit_s`` and every acknowledged
+    record fitted by the monitoring (its fit ok in the drift report)."""
+    m = r["record_to_monitored_s"]
+    n_ack = acknowledged(r)
+    every = n_ack > 0 and m["n"] == n_ack and m.get("fitted_ok") == n_ack
+    ok = every and m["p95"] is not None and m["p95"] <= limit_s
+    return (f"{r['executor']} N={r['n_systems']}: every record monitored, p95 <= "
+            f"{limit_s:.0f} s: {'yes' if ok else 'NO'} (record -> monitored p50 "
+            f"{fnum(m['p50'])} s, p95 {fnum(m['p95'])} s; {m['n']}/{n_ack} seen monitored, "
+            f"{m.get('fitted_ok', '-')}/{n_ack} fitted ok)")
 
 
 def machine() -> dict[str, Any]:

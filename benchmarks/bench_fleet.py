@@ -7,7 +7,9 @@ on a port of its own), registers N systems with the paper's LO-NO model
 (``examples/models/lono.toml``: 2 DOF, 6 free parameters, 4 s records at 2048 Hz - the
 realistic case; a 1-DOF linear model would train faster and understate the cost), gives
 each a training and a validation record, waits until every trainer has published an
-epoch, then for ``--window`` seconds streams one record per system every ``--period``
+epoch (and, by default, every system is onboarded: its first ``best`` exists, so its
+monitoring runs: ``--onboard best``; the time this took is reported), then for
+``--window`` seconds streams one record per system every ``--period``
 seconds, staggered (system i starts at i * period / N; every 4th record is validation),
 from 16 concurrent uploaders (each structure uploads on its own).  Records come from ``service.demo.simulate_impact`` (hammer 30-900 N, sensor noise, hum).
 
@@ -18,8 +20,11 @@ Measured per executor and N, over the window:
   ``data.train`` / ``data.validation`` lists the record (the record is in the training
   data of a published snapshot; polled every 0.5 s when the server answers at once) - p50,
   p95, and the same to that snapshot's own ``time`` (free of the polling);
-  also the same to the first estimate whose monitoring has fitted it
-  (``monitoring.processed_index`` >= the record's index: the headline includes it);
+* record to monitored: from the 202 to the first GET .../estimate whose
+  ``monitoring.processed_index`` (the drift report's, the same number) is >= the record's
+  index: its per-record fit went into the headline and the drift test (polled every 2 s)
+  - p50, p95; and at the end the records the drift report lists as fitted (``records``,
+  ``ok``) out of those acknowledged;
 * the longest gap between successive published snapshots of any system (their own
   ``time``, from the drift report's history at the end of the window: exact), not
   counting time a system was seen idle or waiting for data (GET /v1/systems every 2 s);
@@ -60,8 +65,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _fleet_report import (machine, marginal_memory, must_show,  # noqa: E402,F401
-                           sparse_table, table, write_json)
+from _fleet_report import (machine, marginal_memory, monitoring_verdict,  # noqa: E402,F401
+                           must_show, sparse_table, table, write_json)
 from _fleet_processes import (GROUPS, LocalRayCluster, ProcessMeter, ServerProcess,  # noqa: E402
                               machine_busy_seconds, total, unhandled_errors)
 from clients import SivaClient, SivaClientError  # noqa: E402
@@ -76,8 +81,10 @@ SERVER_ENV = {"SIVA_LOG_LEVEL": "WARNING", "SIVA_TORCH_THREADS": "1",
 METRICS_EVERY_S = 2.0
 UPLOADERS = 16                  # concurrent uploads (one client each)
 PENDING_POLL_S = 0.5
+MONITORED_POLL_S = 2.0          # when only the monitoring of a system's records is awaited
 POLL_PASS_S = 1.0
 MEMORY_EVERY_S = 10.0
+ONBOARD_TIMEOUT_S = 300.0       # + 40 s per system
 PROGRESS_EVERY_S = 15.0
 
 
@@ -89,6 +96,7 @@ class Case:
     period_s: float
     sparse_records: int = 0     # > 0: the sparse-record run (run_sparse) instead
     prefill: int = 2            # sparse run: records stored before onboarding
+    onboard: str = "best"       # before the window: every trainer has an "epoch", or a "best"
 
     @property
     def label(self) -> str:
@@ -99,7 +107,8 @@ class Case:
         setup = 15 + 0.6 * self.n + (25 if self.executor == "ray" else 0)
         if self.sparse_records:
             return setup + 60 + 8 * self.prefill + (30 + 3 * self.prefill) * self.sparse_records
-        return setup + 20 + 1.5 * self.n + self.window_s + min(grace_s, 15)
+        onboard = 25.0 * self.n if self.onboard == "best" else 1.5 * self.n
+        return setup + 20 + onboard + self.window_s + min(grace_s, 15)
 
 
 @dataclass
@@ -391,7 +400,7 @@ def _warm_and_measure(case: Case, client: SivaClient, meter: ProcessMeter, names
         if not hosts:
             raise RuntimeError("SIVA_EXECUTOR=ray but no Ray trainer-host process "
                                f"({'ray::TrainerHost'}) appeared: does this checkout have the "
-                               "ray executor (service/ray_executor.py)?")
+                               "ray executor (service/fleet/ray_executor.py)?")
 
     def all_started() -> bool:
         states = fleet_states(client)
@@ -402,9 +411,34 @@ def _warm_and_measure(case: Case, client: SivaClient, meter: ProcessMeter, names
     warm_timeout = 120 + 3 * case.n
     started = bounded_wait(all_started, warm_timeout, 1.0)
     warmup_s = time.monotonic() - t_setup
+    onboarded: dict[str, float] = {}
+    if case.onboard == "best":
+        t_on = time.monotonic()
+        bounded_wait(lambda: _onboarded(client, names, onboarded, t_on, case, progress),
+                     ONBOARD_TIMEOUT_S + 40.0 * case.n, 2.0)
 
     window = FleetWindow(case, client, meter, names, pool, progress, grace_s, uploaders)
-    return {"warmup_s": warmup_s, "all_trainers_started": bool(started), **window.run()}
+    return {"warmup_s": warmup_s, "all_trainers_started": bool(started),
+            "onboard": case.onboard, "onboarded": len(onboarded),
+            "onboarding_s": max(onboarded.values()) if onboarded else None,
+            "onboarding_timeout": case.onboard == "best" and len(onboarded) < len(names),
+            **window.run()}
+
+
+def _onboarded(client: SivaClient, names: list[str], done: dict[str, float], t0: float,
+               case: Case, progress: Progress) -> bool:
+    """Every system has its first ``best`` and its monitoring has fitted the onboarding
+    records (``done``: name -> seconds it took)."""
+    for n in names:
+        if n in done:
+            continue
+        est = client.estimate(n)
+        mon = est.get("monitoring") or {}
+        if est.get("best") and (mon.get("processed_index") or -1) >= 1:
+            done[n] = time.monotonic() - t0
+    progress.line(case, f"onboarding: {len(done)}/{len(names)} systems have a best and "
+                        "fitted their first records", case.window_s + 30)
+    return len(done) == len(names)
 
 
 class FleetWindow:
@@ -454,14 +488,16 @@ class FleetWindow:
         self.mem_samples.append(self.meter.memory(pss=True))
         grace_end = time.monotonic() + self.grace_s
         while (now := time.monotonic()) < grace_end and (self.uploaders.in_flight() or any(
-                u.in_data_s is None for u in self.uploads)):
+                u.in_data_s is None or u.monitored_s is None for u in self.uploads)):
             self._collect()
             self._poll_pending(streaming=False)
             self.progress.line(self.case, f"grace: {sum(u.in_data_s is None for u in self.uploads)}"
-                                          " records not yet in a published estimate",
-                               grace_end - now)
+                                          " records not yet in a published estimate, "
+                                          f"{sum(u.monitored_s is None for u in self.uploads)} "
+                                          "not yet monitored", grace_end - now)
             time.sleep(0.05)
         self._collect()
+        fitted = self._fitted()
         return {
             "window_s": wall, "t_start_unix": t0, "sent": sum(self.sent.values()),
             "unacknowledged": self.uploaders.in_flight(),
@@ -472,7 +508,7 @@ class FleetWindow:
             "converged_end": sum(bool(s.get("converged")) for s in states1.values()),
             "state_observations": self.state_obs,
             "uploads": [asdict(u) for u in self.uploads],
-            "gaps": gaps,
+            "gaps": gaps, "fitted": fitted,
             "cpu_s": ProcessMeter.cpu_delta(cpu0, cpu1),
             "machine_busy_cores": (busy1 - busy0) / wall,
             "loadavg_start": load0, "loadavg_end": load1,
@@ -523,9 +559,27 @@ class FleetWindow:
             out[n] = snapshot_gaps(times, t0, t_end, self.paused_at[n])
         return out
 
+    def _fitted(self) -> dict[str, dict[str, Any]]:
+        """Per system, from its drift report: which acknowledged records the monitoring
+        fitted (``records`` with ``ok``), failed on, or has not reached."""
+        out = {}
+        for n in self.names:
+            ids = {u.id for u in self.uploads if u.system == n}
+            rep = self.client._http.get(f"/v1/systems/{n}/drift",
+                                        params={"limit": 2000}).json()
+            ok = {r["id"] for r in rep.get("records", []) if r.get("ok")}
+            failed = set(rep.get("failures") or {}) | {r["id"] for r in rep.get("records", [])
+                                                        if not r.get("ok")}
+            secs = [float(r["seconds"]) for r in rep.get("records", [])
+                    if r.get("id") in ids and r.get("seconds") is not None]
+            out[n] = {"acknowledged": len(ids), "fitted_ok": len(ids & ok),
+                      "failed": sorted(ids & failed), "fit_seconds": secs,
+                      "processed_index": rep.get("processed_index")}
+        return out
+
     def _poll_pending(self, streaming: bool) -> None:
         """GET .../estimate of systems with records not yet seen (every 0.5 s; every 2 s
-        when only the monitoring is awaited, and not at all after the window).  One pass
+        when only the monitoring is awaited, also after the window).  One pass
         takes at most ``POLL_PASS_S`` (a slow server must not stall the window's clock:
         the systems longest unpolled go first)."""
         t_pass = time.monotonic()
@@ -536,8 +590,7 @@ class FleetWindow:
             since = time.monotonic() - self.last_poll[n]
             if not todo or since < PENDING_POLL_S:
                 continue
-            if all(u.in_data_s is not None for u in todo) and (
-                    not streaming or since < 4 * PENDING_POLL_S):
+            if all(u.in_data_s is not None for u in todo) and since < MONITORED_POLL_S:
                 continue
             self.last_poll[n] = time.monotonic()
             est = self.client.estimate(n)
@@ -601,9 +654,19 @@ def summarise(case: Case, r: dict[str, Any]) -> dict[str, Any]:
             "published_p50": pct(published, 50), "published_p95": pct(published, 95)},
         "record_to_monitored_s": {
             "definition": "202 -> first estimate whose monitoring.processed_index >= the "
-                          "record's index (its per-record fit is in the headline)",
+                          "record's index (its per-record fit is in the headline and the "
+                          "drift test; polled every 2 s); fitted_ok: the drift report "
+                          "lists its fit as ok at the end",
             "n": len(monitored), "not_seen": len(ups) - len(monitored),
-            "p50": pct(monitored, 50), "p95": pct(monitored, 95)},
+            "p50": pct(monitored, 50), "p95": pct(monitored, 95),
+            "max": max(monitored) if monitored else None,
+            "fitted_ok": sum(f["fitted_ok"] for f in r.get("fitted", {}).values()),
+            "failed": sum(len(f["failed"]) for f in r.get("fitted", {}).values()),
+            "fit_seconds_p50": pct([x for f in r.get("fitted", {}).values()
+                                    for x in f["fit_seconds"]], 50)},
+        "onboard": r.get("onboard"), "onboarded": r.get("onboarded"),
+        "onboarding_s": r.get("onboarding_s"),
+        "onboarding_timeout": r.get("onboarding_timeout"),
         "max_update_gap_s": max(gaps) if gaps else None,
         "median_max_gap_s": statistics.median(gaps) if gaps else None,
         "min_updates_per_system": min(updates) if updates else 0,
@@ -624,7 +687,7 @@ def summarise(case: Case, r: dict[str, Any]) -> dict[str, Any]:
         "loadavg": {"start": r["loadavg_start"], "end": r["loadavg_end"]},
         "server_log_errors": r["server_log_errors"],
         "raw": {k: r[k] for k in ("epochs", "gaps", "uploads", "memory_samples", "memory_base",
-                                  "state_observations")},
+                                  "state_observations", "fitted")},
     }
 
 
@@ -636,8 +699,13 @@ def main() -> int:
                     help="seconds between two records of one system")
     ap.add_argument("--window", type=float, default=None,
                     help="measurement window per case (default 120 + 3 N s)")
-    ap.add_argument("--grace", type=float, default=60.0,
-                    help="after the window, wait at most this for records not yet seen")
+    ap.add_argument("--grace", type=float, default=90.0,
+                    help="after the window, wait at most this for records not yet seen "
+                         "(in an estimate, and fitted by the monitoring)")
+    ap.add_argument("--onboard", choices=("best", "epoch"), default="best",
+                    help="start the window once every system has its first best (its "
+                         "monitoring runs: the steady state of a monitored fleet) or once "
+                         "every trainer has an epoch (young systems: no monitoring yet)")
     ap.add_argument("--node-cpus", type=int, default=4, help="logical CPUs per Ray node")
     ap.add_argument("--quick", action="store_true",
                     help="reduced: N=1,4, 45 s windows, a record every 15 s")
@@ -671,7 +739,8 @@ def main() -> int:
         executors = ["threads"]
     cases = [Case(ex, 1, 0.0, 0.0, args.sparse_records, args.sparse_prefill)
              for ex in executors if args.sparse_records > 0]
-    cases += [Case(ex, n, window or 120.0 + 3.0 * n, period) for n in systems for ex in executors]
+    cases += [Case(ex, n, window or 120.0 + 3.0 * n, period, onboard=args.onboard)
+              for n in systems for ex in executors]
     n_records = max([2 + int(c.window_s / c.period_s) + 2 for c in cases if not c.sparse_records]
                     + [max(2, c.prefill) + c.sparse_records for c in cases if c.sparse_records])
     t = time.perf_counter()

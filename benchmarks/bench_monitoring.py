@@ -2,7 +2,7 @@
 
 Streams LO-NO impact records made by the project's simulator (``service.demo.simulate_impact``:
 half-sine hammer pulses of 30-900 N, 0.3 % accelerometer noise, 60 Hz hum, 0.2 % force
-noise) through the service's own monitoring code (``service.monitor.RecordMonitor``: one
+noise) through the service's own monitoring code (``service.monitoring.monitor.RecordMonitor``: one
 output-error fit per record, the CUSUM detector, the headline) without a server, for speed.
 The monitor is seeded as the service seeds it: one output-error refinement on the first
 three records from a start 5 % off the truth (standing in for the first ``best``).
@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from service.demo import LONO_TRUTH, DemoConfig, lono_structure, simulate_impact, to_csv  # noqa: E402
-from service.monitor import RecordMonitor  # noqa: E402
+from service.monitoring.monitor import RecordMonitor  # noqa: E402
 
 
 def make_record(structure: Any, theta: dict[str, float], rng: np.random.Generator,
@@ -44,7 +44,7 @@ def seeded_monitor(structure: Any, records: list[Any], rng: np.random.Generator)
     """The monitor after the first ``best``: a refinement on three records from 5 % off."""
     from siva_core import refine
 
-    from service.uploads import processing_for
+    from service.storage.uploads import processing_for
 
     proc = processing_for(records, structure.dofs)
     truth = np.array([LONO_TRUTH[p] for p in structure.free])

@@ -12,7 +12,7 @@ __all__ = ["create_app", "Settings"]
 
 def __getattr__(name: str) -> Any:
     if name == "create_app":
-        from .app import create_app
+        from .api.app import create_app
 
         return create_app
     if name == "Settings":

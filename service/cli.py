@@ -56,7 +56,7 @@ def serve_command(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from .app import create_app
+    from .api.app import create_app
     from .settings import Settings
 
     logging.basicConfig(level=os.environ.get("SIVA_LOG_LEVEL", "INFO").upper(),
@@ -97,7 +97,7 @@ def _start_demo(host: str, port: int, settings: Any) -> None:
 def replay_command(args: argparse.Namespace) -> int:
     """Re-run a service MCAP log and write the final estimate (shape of GET .../estimate);
     exit 0 when the verdict is identical or reproduced, 1 when it differs."""
-    from .replay import REPRODUCED_TOLERANCE_IN_STD, write_replay
+    from .replay.run import REPRODUCED_TOLERANCE_IN_STD, write_replay
 
     tol = getattr(args, "tolerance", None)
     result = write_replay(args.log, getattr(args, "out", None),

@@ -288,7 +288,7 @@ class ServerThread:
 
         import uvicorn
 
-        from .app import create_app
+        from .api.app import create_app
 
         if port == 0:
             with socket.socket() as s:

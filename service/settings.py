@@ -27,6 +27,8 @@ ENV_VARS: dict[str, str] = {
     "SIVA_CHECKPOINT_EVERY_S": "checkpoint_every_s",
     "SIVA_IDLE_SLEEP_S": "idle_sleep_s",
     "SIVA_EPOCH_PAUSE_S": "epoch_pause_s",
+    "SIVA_MONITOR_YIELD_S": "monitor_yield_s",
+    "SIVA_MONITOR_FITS": "monitor_fits",
     "SIVA_HISTORY_LIMIT": "history_limit",
     "SIVA_DRIFT_CONSECUTIVE": "drift_consecutive",
     "SIVA_DRIFT_REL_TOL": "drift_rel_tol",
@@ -86,6 +88,9 @@ class Settings:
     checkpoint_every_s: float = 30.0    # seconds between durable trainer checkpoints
     idle_sleep_s: float = 0.5           # wait when there is nothing to train on
     epoch_pause_s: float = 0.0          # pause between epochs once converged (CPU sharing)
+    monitor_yield_s: float = 15.0       # trainers wait this long at most per epoch while a
+                                        # per-record fit (any system's) runs; 0: never
+    monitor_fits: int = 2               # per-record fits of different systems at once
     # Drift detection (service/detector.py: CUSUM on per-record estimates).
     history_limit: int = 2000           # snapshots / per-record estimates kept
     drift_baseline_records: int = 10    # first records forming the reference
@@ -139,6 +144,7 @@ class Settings:
                     "auto_validation_every", "snapshot_every", "history_limit",
                     "drift_consecutive", "drift_reference_after", "refine_max_records",
                     "refine_candidates", "drift_baseline_records", "headline_window",
+                    "monitor_fits",
                     "record_max_nfev", "drift_arl0_records", "max_spec_bytes", "max_spec_depth",
                     "max_dofs", "max_elements", "max_parameters", "ray_systems_per_actor",
                     "max_concurrent_uploads", "upload_bytes_in_flight")
@@ -146,6 +152,7 @@ class Settings:
             if getattr(self, name) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)}")
         for name in ("replay_reservoir", "checkpoint_every_s", "snapshot_max_interval_s", "idle_sleep_s", "epoch_pause_s",
+                     "monitor_yield_s",
                      "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
                      "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s",
                      "upload_queue_s"):

@@ -32,8 +32,9 @@ Identification
     explain them up to noise?); :class:`Ensemble`, :func:`normal_summary`,
     :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
-    :func:`force_profiled_output_error`, :func:`displacement_mse`, :class:`OutputErrorProblem`, :func:`linearize` ->
-    :class:`Linearization` (the output error linearised at an anchor);
+    :func:`force_profiled_output_error`, :func:`displacement_mse`, :class:`OutputErrorProblem`,
+    :func:`linearize` -> :class:`Linearization` (the output error linearised at an anchor),
+    :func:`settle` -> :class:`Settled` (the anchor moved to the output-error optimum first);
     baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
 Diagnosis
     :func:`diagnose` -> :class:`Diagnosis`, :class:`DiagnoseSettings`,
@@ -82,7 +83,7 @@ _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
         "OutputErrorProblem", "force_profiled_output_error")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
-_export("linearized", "linearize", "Linearization")
+_export("linearized", "linearize", "Linearization", "settle", "Settled", "gauss_newton_step")
 _export("diagnose", "diagnose", "Diagnosis", "DiagnoseSettings", "synthetic_impacts",
         "with_effect", "html_report")
 _export("effects", "Effect", "EFFECTS", "register_effect")
@@ -136,5 +137,5 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
     from ._impl.structure import SpecError, Structure
     from ._impl.training import SivaSettings, SivaTrainer
-    from ._impl.linearized import Linearization, linearize
+    from ._impl.linearized import Linearization, Settled, gauss_newton_step, linearize, settle
     from ._impl.validation import validation_score

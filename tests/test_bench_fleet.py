@@ -43,3 +43,17 @@ def test_marginal_memory_is_the_slope_between_smallest_and_largest_fleet():
     assert m["threads"]["rss_mb_per_system"] == pytest.approx(20.0)
     assert m["threads"]["pss_mb_per_system"] == pytest.approx(1200.0 / 63)
     assert "ray" not in m                            # one successful case: no slope
+
+
+def _monitored(n, seen, fitted_ok, p95):
+    return {"executor": "threads", "n_systems": 16, "records_sent": n, "records_acknowledged": n,
+            "record_to_monitored_s": {"n": seen, "p50": 5.0, "p95": p95, "fitted_ok": fitted_ok}}
+
+
+def test_monitoring_must_show_needs_every_record_fitted_and_p95_within_the_limit():
+    verdict = bench.monitoring_verdict
+    assert ": yes" in verdict(_monitored(90, 90, 90, 11.5))
+    assert ": NO" in verdict(_monitored(90, 90, 90, 85.4))        # too slow
+    assert ": NO" in verdict(_monitored(90, 89, 89, 11.5))        # one never monitored
+    assert ": NO" in verdict(_monitored(90, 90, 88, 11.5))        # two fits failed
+    assert ": NO" in verdict(_monitored(0, 0, 0, None))           # nothing measured

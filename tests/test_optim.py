@@ -68,3 +68,22 @@ def test_fast_adam_state_dict_round_trip() -> None:
     new[3].load_state_dict(snap["od"])
     _train(*new, steps=30, seed=2)
     assert all(torch.equal(x, y) for x, y in zip(_weights(*ref[:2]), _weights(*new[:2])))
+
+
+def test_fast_adam_never_imports_the_compiler() -> None:
+    """torch.optim.Optimizer's guards import torch._dynamo (~2 s of CPU) on first use;
+    FastAdam's step, zero_grad and state_dict round trip must not."""
+    import subprocess
+    import sys
+
+    code = ("import sys, torch\n"
+            "from siva_core._impl.optim import FastAdam\n"
+            "from siva_core._impl.networks import Discriminator\n"
+            "d = Discriminator(3); opt = FastAdam(d.parameters(), lr=1e-3)\n"
+            "for _ in range(3):\n"
+            "    opt.zero_grad(set_to_none=True); d(torch.randn(8, 3)).sum().backward(); opt.step()\n"
+            "opt.load_state_dict(opt.state_dict())\n"
+            "assert 'torch._dynamo' not in sys.modules, 'torch._dynamo was imported'\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]

@@ -90,8 +90,24 @@ def test_jacobian_is_one_batched_simulation(duffing_model: Structure, train_v5: 
     res = refine(duffing_model, DUFFING_TRUTH * 1.01, train_v5, Processing(), horizons=None,
                  max_nfev=5)
     n = len(duffing_model.free)
-    assert set(sizes) == {1, n + 1}
-    assert sizes.count(n + 1) == res.njev
+    # each Jacobian is ONE batched simulation of its n probes: the base row is the residual
+    # the trust-region step has just computed at the same point (reused, not re-simulated)
+    assert set(sizes) == {1, n}
+    assert sizes.count(n) == res.njev
+
+
+def test_a_set_simulated_alone_or_in_a_batch_gives_the_same_residuals(
+        duffing_model: Structure, train_v5: Recording) -> None:
+    """What the Jacobian's reuse of its base row rests on: each parameter set of a batch is
+    simulated and processed on its own, bit for bit."""
+    proc = Processing.auto([train_v5], duffing_model.dofs)
+    prob = OutputErrorProblem.build(duffing_model, [train_v5], proc,
+                                    theta_ref=DUFFING_TRUTH[None])
+    rng = np.random.default_rng(3)
+    sets = DUFFING_TRUTH * (1 + 1e-3 * rng.standard_normal((5, DUFFING_TRUTH.size)))
+    batch = prob.residuals(sets)
+    for b in (0, 4):
+        assert np.array_equal(prob.residuals(sets[b:b + 1])[0], batch[b])
 
 
 # ------------------------------------------------------------------ the chain

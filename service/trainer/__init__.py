@@ -2,7 +2,10 @@
 
 Parts (one concern each, frozen values between them: ``types.py``):
 
-- ``worker.py``     SystemWorker: the trainer thread's loop, phases, idle, checkpoints
+- ``worker.py``     SystemWorker: its state, control calls and the trainer thread's loop
+- ``phases.py``     its phase steps: the first ``best`` job, anchors, validation jobs
+- ``lifecycle.py``  its set-up from a checkpoint, checkpoints, idling
+- ``publishing.py`` its snapshots, drift report and per-record monitoring step
 - ``data.py``       DataFeed: replay buffer, parsed records, processing chain -> DataSet
 - ``refiner.py``    Refiner: the second thread (first ``best``, anchors, monitoring,
                     validation)
@@ -11,6 +14,8 @@ Parts (one concern each, frozen values between them: ``types.py``):
 - ``validation.py`` the held-out test (T, p-value, verdict) for headline and ensemble
 - ``snapshot.py``   the published snapshot, agreement of ensemble and headline
 - ``factory.py``    making and stopping trainers
+- ``estimate.py``   reading an estimate out and shaping ``GET .../estimate`` (shared with replay)
+- ``replay_buffer.py`` which records are held in memory (window + reservoir)
 """
 from __future__ import annotations
 

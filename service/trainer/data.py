@@ -13,9 +13,12 @@ from typing import Any
 
 from siva_core import Processing, Recording, RecordingError, States, Structure
 
+from ..errors import UnknownSystem
 from ..settings import Settings
-from ..store import RecordingMeta, ReplayBuffer, Store, UnknownSystem
-from ..uploads import processing_for
+from ..storage.recordings import RecordingMeta
+from ..storage.store import Store
+from ..storage.uploads import processing_for
+from .replay_buffer import ReplayBuffer
 from .types import DataSet
 
 log = logging.getLogger("siva.service.worker")

@@ -14,11 +14,13 @@ import numpy as np
 
 from siva_core import Processing, Recording, RecordingError, Structure
 
-from ..detector import DetectorSettings
-from ..estimate import jsonable
-from ..monitor import RecordMonitor
+from ..errors import UnknownSystem
+from ..monitoring.detector import DetectorSettings
+from ..monitoring.monitor import RecordMonitor
 from ..settings import Settings
-from ..store import Store, UnknownSystem
+from ..storage.store import Store
+from .estimate import jsonable
+from .priority import MONITOR
 from .refiner import REFINE_LOCK
 
 
@@ -76,7 +78,7 @@ class Monitoring:
             self.monitor.processed_index = meta.index
             self.monitor.failures[meta.id] = str(exc)
             return []
-        with REFINE_LOCK, self.lock:
+        with REFINE_LOCK.hold(MONITOR), self.lock:
             if stopping.is_set():
                 return None
             changes = self.monitor.process(meta.id, meta.index, rec,

@@ -1,22 +1,28 @@
 """The refiner thread: everything slow that the trainer thread must not wait for.
 
-Per system, one daemon thread empties three slots, in this order:
+Per system, one daemon thread empties these slots, in this order:
 
 1. a ``best`` job: the first output-error estimate (``siva_core.recommend_best``:
-   Approach III over the equation-error ensemble, then the output-error refinement), and
-   the output-error phase's first anchor, linearised at it (``anchoring.py``);
+   Approach III over the equation-error ensemble, then the output-error refinement); it
+   queues the first anchor job (3.), which runs after the records are fitted (2.);
 2. the per-record monitoring (``step``: one output-error fit per new record, the
    headline and the drift test), until no record is left;
-3. an ``anchor`` job: after the data changed, the linearisation at the current headline
-   (so the headline already includes the new records);
+3. an ``anchor`` job: the output-error phase's linearisation (``anchoring.py``) at the
+   current headline (so the headline already includes the new records), first settled at
+   the training records' output-error optimum (``siva_core.settle``);
 4. a validation job: ``validation.py``'s test of the headline and the ensemble.
 
-A job not yet started is superseded by a newer one of its kind.  Jobs carry frozen copies
-(``types.py``); results go back through callbacks and are applied by the trainer thread
+A job not yet started is superseded by a newer one of its kind.  Refinements take turns
+in the process, the most urgent first (``priority.py``: per-record fits before a first
+``best``, re-anchors and validations, fleet-wide); a re-anchor or validation still waiting
+for its turn when its own system gets a new record gives way to that record's fit and runs
+after it, on the newest data (it coalesces the records that arrived meanwhile).  Jobs carry
+frozen copies (``types.py``); results go back through callbacks and are applied by the trainer thread
 between two epochs, so ``siva replay`` can reproduce the trainer exactly from the log.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -27,13 +33,15 @@ import numpy as np
 from siva_core import Processing, Structure
 
 from .anchoring import build_anchor
+from .priority import ANCHOR, BEST, VALIDATION, RefineQueue
 from .types import Anchor, Best, ParameterValue, RefineJob, ValidationJob, Verdict
 from .validation import validate
 
 log = logging.getLogger("siva.service.worker")
 
-#: one refinement at a time in the process (they are CPU-heavy and use numba's threads)
-REFINE_LOCK = threading.Lock()
+#: one refinement at a time in the process (they are CPU-heavy and use numba's threads),
+#: the most urgent first (priority.py)
+REFINE_LOCK = RefineQueue()
 
 
 class Refiner:
@@ -121,8 +129,24 @@ class Refiner:
                 vjob, self._validation = self._validation, None
             if anchor_job is not None:
                 self._guarded(lambda: self._run_anchor(anchor_job), "re-anchoring")
-            if vjob is not None:
+            if vjob is not None and not self._poked:
                 self._guarded(lambda: self._run_validation(vjob), "validation")
+            elif vjob is not None:
+                self._requeue(validation=vjob)
+
+    def _requeue(self, anchor: RefineJob | None = None,
+                 validation: ValidationJob | None = None) -> None:
+        """A job that gave way to a new record's fit runs later, unless superseded meanwhile."""
+        with self._cv:
+            if anchor is not None and self._anchor_job is None:
+                self._anchor_job = anchor
+            if validation is not None and self._validation is None:
+                self._validation = validation
+            self._cv.notify_all()
+
+    def _gives_way(self) -> bool:
+        """A new record of this system is waiting to be fitted (or the thread stops)."""
+        return self._poked or self._stop.is_set()
 
     def _guarded(self, fn: Callable[[], None], what: str) -> None:
         try:
@@ -149,7 +173,7 @@ class Refiner:
         t0 = time.perf_counter()
         proc = job.data.processing if job.data.processing is not None else Processing()
         assert job.candidates is not None
-        with REFINE_LOCK:
+        with REFINE_LOCK.hold(BEST):
             if self._stop.is_set():
                 return
             rec = recommend_best(self.structure, job.candidates, list(job.refine_records), proc)
@@ -170,25 +194,58 @@ class Refiner:
                     n_candidates=int(len(job.candidates)), seconds=seconds)
         self._on_best(best, job)
         if job.anchor:
-            self._anchor(job, best.theta(self.structure.free), "best")
+            # the first anchor: after the per-record fits (``_loop`` runs the monitor
+            # first), at the headline they give -- a second, record-by-record refinement
+            # from ``best``, which a refinement stopped short of the optimum needs
+            with self._cv:
+                if self._anchor_job is None:
+                    self._anchor_job = dataclasses.replace(job, kind="anchor", candidates=None,
+                                                           refine_records=())
 
     def _run_anchor(self, job: RefineJob) -> None:
         theta = job.theta if job.theta is not None else self._headline_theta()
         if theta is None:
             return
-        self._anchor(job, theta, "headline" if job.theta is None else "given")
+        at_headline = job.theta is None
+        if not self._anchor(job, theta, "headline" if at_headline else "given",
+                            gives_way=at_headline, at_headline=at_headline):
+            self._requeue(anchor=job)
 
-    def _anchor(self, job: RefineJob, theta: np.ndarray, source: str) -> None:
+    def _anchor(self, job: RefineJob, theta: np.ndarray, source: str,
+                gives_way: bool = False, at_headline: bool = False) -> bool:
+        """The linearisation at ``theta`` (``at_headline``: at the headline as it is when
+        the work starts), once settled at the training records' output-error optimum
+        (``siva_core.settle``: the linearisation's optimum is then its anchor).
+        ``gives_way``: while waiting for its turn, a new record of this system goes first -
+        returns False without anchoring (the caller re-queues)."""
+        from siva_core import settle
+
         t0 = time.perf_counter()
-        with REFINE_LOCK:
+        proc = job.data.processing if job.data.processing is not None else Processing()
+        with REFINE_LOCK.hold(ANCHOR, self._gives_way if gives_way else None) as turn:
+            if not turn:
+                return self._stop.is_set()
             if self._stop.is_set():
-                return
-            anchor = build_anchor(self.structure, theta, job.data, job.train_records,
+                return True
+            if at_headline:  # records fitted while waiting moved it
+                now = self._headline_theta()
+                theta = theta if now is None else now
+            settled = settle(self.structure, theta, job.train_records, proc)
+            if self._stop.is_set():
+                return True
+            anchor = build_anchor(self.structure, settled.theta, job.data, job.train_records,
                                   job.val_records, source=source, n_noise=job.n_noise,
                                   seed=job.seed)
-        log.info("%s: output-error anchor (%s) on %d+%d record(s) in %.1f s", self.name,
-                 source, len(job.train_records), len(job.val_records), time.perf_counter() - t0)
+        if not settled.converged:
+            log.warning("%s: the anchor is not at the output-error optimum (last Gauss-Newton "
+                        "step %.1f standard errors): the ensemble may be off", self.name,
+                        settled.step_se)
+        log.info("%s: output-error anchor (%s) on %d+%d record(s) in %.1f s; settled in %d "
+                 "Gauss-Newton step(s), last step %.2f standard errors", self.name, source,
+                 len(job.train_records), len(job.val_records), time.perf_counter() - t0,
+                 settled.steps, settled.step_se)
         self._on_anchor(anchor)
+        return True
 
     def _run_validation(self, job: ValidationJob) -> None:
         proc = job.data.processing if job.data.processing is not None else Processing()
@@ -197,6 +254,6 @@ class Refiner:
             if theta is None or self._stop.is_set():
                 out.append(None)
                 continue
-            with REFINE_LOCK:
+            with REFINE_LOCK.hold(VALIDATION):
                 out.append(validate(self.structure, theta, job.records, proc, of))  # type: ignore[arg-type]
         self._on_verdicts(job, out[0], out[1])

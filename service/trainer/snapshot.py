@@ -13,8 +13,8 @@ from typing import Any, Mapping
 
 from siva_core import Processing, Structure
 
-from ..drift import modal_quantities
-from ..estimate import headline, jsonable
+from ..monitoring.drift import modal_quantities
+from .estimate import headline, jsonable
 from .readout import EnsembleReadout
 from .types import Anchor, Best, DataSet, Verdict
 from .validation import validation_view

@@ -81,9 +81,10 @@ class RefineJob:
     """Work for the refiner thread, from the trainer thread.
 
     ``kind = "best"``: Approach III over ``candidates`` and the output-error refinement on
-    ``refine_records`` (the first ``best``), then the output-error linearisation at it.
-    ``kind = "anchor"``: only the linearisation, at ``theta`` (the current headline), on the
-    data set ``data`` (a re-anchor after the data changed)."""
+    ``refine_records`` (the first ``best``); then (``anchor``) the first anchor job.
+    ``kind = "anchor"``: only the linearisation, at ``theta`` (None: the current headline),
+    settled at the output-error optimum of ``data``'s training records (the first anchor,
+    or a re-anchor after the data changed)."""
 
     kind: Literal["best", "anchor"]
     data: DataSet

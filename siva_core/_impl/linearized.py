@@ -13,8 +13,11 @@ batched simulation of n+1 sets, plus the nuisance columns):
 
 Nuisance parameters (a force scale per impact record, the initial state of a free decay
 recorded by accelerometers) are profiled out by projecting r_a and J onto the complement
-of their columns.  The anchor is moved (``relinearize``) as the generator's mean moves, a
-Gauss-Newton outer loop.
+of their columns.  The linearisation only describes the output error near its anchor, and
+its optimum is the anchor only when the anchor is the output-error optimum: ``settle``
+moves the anchor there first (Gauss-Newton on the linearisation, step-halving), so that a
+start off the optimum (a refinement stopped early, a headline of other records) cannot
+bias what is harvested from it.
 
 ``noise`` holds parametric-bootstrap perturbations of the residuals (measurement noise with
 the residuals' own spectrum, force-sensor noise through the dynamics; ``replicates.noise_replicates``):
@@ -183,4 +186,66 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
                          [list(rr.quantities) for rr in prob.records], recs, prob.chain)
 
 
-__all__ = ["Linearization", "linearize"]
+@dataclass(frozen=True)
+class Settled:
+    """Where ``settle`` left the anchor: ``theta``, the Gauss-Newton steps taken, the size
+    of the last step proposed (max over parameters, in standard errors) and whether that is
+    within the tolerance."""
+
+    theta: np.ndarray
+    steps: int
+    step_se: float
+    converged: bool
+
+
+def gauss_newton_step(lin: Linearization) -> tuple[np.ndarray, float]:
+    """The linearisation's own optimum as a step ``x`` from its anchor, and the step's size:
+    max over parameters of |x| / (Gauss-Newton standard error)."""
+    x = -np.linalg.lstsq(lin.J, lin.r, rcond=None)[0]
+    se = np.sqrt(np.clip(np.diag(lin.cov_x()), 1e-300, None))
+    return x, float(np.max(np.abs(x) / se)) if len(x) else 0.0
+
+
+def settle(structure: Any, theta: np.ndarray, records: Sequence[Recording],
+           processing: Processing, *, tol_se: float = 0.5, max_steps: int = 8,
+           max_move: float = 0.25, fit_force_scale: bool | str = "auto") -> Settled:
+    """Move ``theta`` to the output-error optimum of ``records`` before it anchors a
+    linearisation: Gauss-Newton steps on the linearised output error (nuisance profiled
+    out), at most ``max_move`` per parameter (log units, or relative to its value), each
+    kept only when it lowers the output error (else halved, up to 4 times), until the
+    proposed step is within ``tol_se`` standard errors.  Never worse than ``theta``: every
+    accepted step lowers the output error.
+
+    Why: the output-error phase fits the linearisation r_a + J x; when the anchor is off the
+    optimum, its optimum is a Gauss-Newton step away, computed with the anchor's (wrong)
+    Jacobian, and the harvested ensemble is centred there -- biased by the nonlinearity and
+    with a spread from the wrong J (a 3-DOF chain anchored 50 % off on a damping: ensemble
+    +22 %, validation T ~ 1000).  At the optimum the step is ~0 and this costs one
+    linearisation without replicates.  Deterministic (no random numbers)."""
+    theta = np.asarray(theta, dtype=float).ravel().copy()
+    lin = linearize(structure, theta, records, processing, fit_force_scale=fit_force_scale)
+    for k in range(max_steps):
+        x, size = gauss_newton_step(lin)
+        if size <= tol_se:
+            return Settled(theta, k, size, True)
+        # a trust region: the linearisation says little about the output error more than
+        # ``max_move`` (log units or relative) away; far steps are shortened to it
+        x = x * min(1.0, max_move / max(float(np.max(np.abs(x))), 1e-300))
+        for _ in range(5):
+            cand = lin.to_theta(x).ravel()
+            try:
+                new = linearize(structure, cand, records, processing,
+                                fit_force_scale=fit_force_scale)
+            except ValueError:  # the simulation diverges there: a shorter step
+                new = None
+            if new is not None and np.isfinite(new.cost) and new.cost < lin.cost:
+                break
+            x = 0.5 * x
+        else:
+            return Settled(theta, k, size, False)
+        theta, lin = cand, new
+    x, size = gauss_newton_step(lin)
+    return Settled(theta, max_steps, size, size <= tol_se)
+
+
+__all__ = ["Linearization", "linearize", "Settled", "settle", "gauss_newton_step"]

@@ -9,6 +9,13 @@ operations of the ``foreach`` Adam in the same order (bit-identical weights, mea
 ``tests/test_optim.py``), and ``state_dict``/``load_state_dict`` keep Adam's format.
 Anything but the plain configuration SIVA uses (CPU float tensors; no weight decay,
 amsgrad, maximize, capturable or fused) falls back to ``torch.optim.Adam.step``.
+
+It also skips ``torch.optim.Optimizer``'s per-call layers, which cost as much as the
+update itself here: the profiler wrapper around ``step`` (so step hooks registered on a
+FastAdam are not called), the ``torch._disable_dynamo`` wrappers of ``add_param_group``,
+``zero_grad``, ``state_dict`` and ``load_state_dict`` (the first call of any of them
+imports ``torch._dynamo``: ~2 s of CPU per process, for a compiler SIVA never uses) and
+``zero_grad``'s profiler context (``set_to_none=True`` just drops the gradients).
 """
 from __future__ import annotations
 
@@ -17,12 +24,39 @@ from typing import Any
 import torch
 
 
+def _undecorated(fn: Any) -> Any:
+    """The function under ``torch._disable_dynamo`` (itself when not wrapped)."""
+    return getattr(fn, "__wrapped__", fn)
+
+
+_ADD_PARAM_GROUP = _undecorated(torch.optim.Optimizer.add_param_group)
+_ZERO_GRAD = _undecorated(torch.optim.Optimizer.zero_grad)
+_STATE_DICT = _undecorated(torch.optim.Optimizer.state_dict)
+_LOAD_STATE_DICT = _undecorated(torch.optim.Optimizer.load_state_dict)
+_ONE = torch.tensor(1.0)  # the step counters' increment (read only)
+
+
 class FastAdam(torch.optim.Adam):
     """``torch.optim.Adam`` with flat per-group buffers and a lean ``step``."""
 
     def __init__(self, params: Any, **kw: Any) -> None:
         super().__init__(params, **kw)
         self._flat: list[dict[str, Any] | None] = [self._flatten(g) for g in self.param_groups]
+
+    # the Optimizer methods without their torch._dynamo guard (see the module docstring)
+    def add_param_group(self, param_group: dict[str, Any]) -> None:
+        _ADD_PARAM_GROUP(self, param_group)
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        if not set_to_none:
+            _ZERO_GRAD(self, set_to_none)
+            return
+        for group in self.param_groups:
+            for p in group["params"]:
+                p.grad = None
+
+    def state_dict(self) -> dict[str, Any]:  # type: ignore[override]
+        return _STATE_DICT(self)
 
     # ------------------------------------------------------------------ layout
     def _plain(self, group: dict[str, Any]) -> bool:
@@ -71,10 +105,11 @@ class FastAdam(torch.optim.Adam):
         else:
             return False
         flat["m"], flat["v"] = m, v
+        flat["steps"] = [self.state[p]["step"] for p in group["params"]]
         return True
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:  # type: ignore[override]
-        super().load_state_dict(state_dict)
+        _LOAD_STATE_DICT(self, state_dict)
         for flat in self._flat:
             if flat is not None:
                 flat["m"] = flat["v"] = None  # re-bound to the loaded state at the next step
@@ -98,9 +133,9 @@ class FastAdam(torch.optim.Adam):
                 continue
             beta1, beta2 = group["betas"]
             lr, eps = group["lr"], group["eps"]
-            steps = [self.state[p]["step"] for p in params]
+            steps = flat["steps"]  # the state's step tensors (bound with m and v)
             g = torch.cat([p.grad.reshape(-1) for p in params])
-            torch._foreach_add_(steps, torch.tensor(1.0), alpha=1.0)
+            torch._foreach_add_(steps, _ONE, alpha=1.0)
             m, v, w = flat["m"], flat["v"], flat["params"]
             m.lerp_(g, 1 - beta1)
             v.mul_(beta2)
@@ -126,3 +161,6 @@ class FastAdam(torch.optim.Adam):
                 for p, grad in saved:
                     p.grad = grad
         return None
+
+    # marks ``step`` as already wrapped: Optimizer.__init__ then leaves it unwrapped
+    step.hooked = True  # type: ignore[attr-defined]

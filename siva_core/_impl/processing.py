@@ -30,6 +30,7 @@ from typing import Any, Callable, ClassVar, Iterable, Sequence
 import numpy as np
 from scipy import integrate, signal
 
+from .chain_cache import memoised, record_digest
 from .impulse import detect_impulse
 from .recording import Recording
 
@@ -328,7 +329,7 @@ class Processing:
     # ------------------------------------------------------------------ chain
     def _derive_arrays(self, fs: float, dofs: Sequence[str],
                        given: Callable[[str, str], np.ndarray | None],
-                       force: np.ndarray, need: str = "qva") -> tuple[np.ndarray, ...]:
+                       force: np.ndarray | None, need: str = "qva") -> tuple[Any, ...]:
         """Core: per DOF derive what is missing; arrays have time on the last axis.
 
         Every derived signal records the filters it went through (its ledger); with
@@ -338,7 +339,8 @@ class Processing:
         the wanted signals and what they derive from are computed (an output-error
         residual on accelerations needs no integration); the others are returned as
         zero-strided NaN arrays.  Wanted signals are computed by exactly the same
-        operations as with ``need="qva"`` (bit-identical).
+        operations as with ``need="qva"`` (bit-identical).  ``force=None``: the force is
+        not processed (returned as None; ``apply_simulated`` takes it from the memo).
         """
         npad = int(round(self.pad * fs))
         if self.drift == "tail":
@@ -356,28 +358,15 @@ class Processing:
             x = given(qty, d)
             return None if x is None else padded(np.asarray(x, float), -1)
 
-        force = padded(np.asarray(force, float), 0)
         qs: list[np.ndarray | None] = []
         vs: list[np.ndarray | None] = []
         as_: list[np.ndarray | None] = []
         ledgers: list[Counter] = []
-        acc_keys = self._acc_keys(fs)
-        high = [("high", float(self.highpass))] if self.highpass is not None else []
-        low = [("low", float(self.lowpass_diff))] if self.lowpass_diff is not None else []
         for d in dofs:
             dq, dv, da = source("disp", d), source("vel", d), source("acc", d)
             if dq is None and dv is None and da is None:
                 raise ValueError(f"DOF {d!r} has no disp, vel or acc")
-            # ledgers (symbolic): which filters each signal of this DOF goes through
-            la = lv = lq = Counter()
-            if da is not None:
-                la = Counter(acc_keys)
-            if dv is None:
-                lv = la + Counter(high) if da is not None else Counter(low)
-            if dq is None:
-                lq = lv + Counter(high)
-            if da is None:
-                la = lv + Counter(low)
+            lq, lv, la = self._dof_ledgers(fs, dq is not None, dv is not None, da is not None)
             # what must be computed: the wanted signals and their sources
             want_q = "q" in need
             want_a = "a" in need
@@ -407,18 +396,14 @@ class Processing:
             vs.append(v if "v" in need else None)
             as_.append(a if want_a else None)
             ledgers.extend([lq, lv, la])
-        f = np.asarray(force, float)
         if self.consistent:
-            target: Counter = Counter()
-            for led in ledgers:
-                target |= led
+            target = _union(ledgers)
             for k in range(len(dofs)):
                 for lst, led in ((qs, ledgers[3 * k]), (vs, ledgers[3 * k + 1]),
                                  (as_, ledgers[3 * k + 2])):
                     if lst[k] is not None:
                         lst[k] = self._top_up(lst[k], target - led, fs, -1)
-        if self.consistent:
-            f = self._top_up(f, target, fs, 0)
+        f = None if force is None else self._force_full_rate(force, fs, _union(ledgers))
         computed = [x for x in qs + vs + as_ if x is not None]
         shape = np.broadcast_shapes(*(x.shape for x in computed))
         nan = np.broadcast_to(np.float64(np.nan), shape)
@@ -429,8 +414,57 @@ class Processing:
                    for lst in (qs, vs, as_))
         if npad > 0:
             keep = slice(npad, q.shape[-2] - npad)
-            q, v, a, f = q[..., keep, :], v[..., keep, :], a[..., keep, :], f[keep]
+            q, v, a = q[..., keep, :], v[..., keep, :], a[..., keep, :]
         return q, v, a, f
+
+    def _dof_ledgers(self, fs: float, has_q: bool, has_v: bool, has_a: bool
+                     ) -> tuple[Counter, Counter, Counter]:
+        """(q, v, a) ledgers of one DOF: the filters each of its signals goes through,
+        given which of them were measured (the rest is derived)."""
+        high = [("high", float(self.highpass))] if self.highpass is not None else []
+        low = [("low", float(self.lowpass_diff))] if self.lowpass_diff is not None else []
+        la = lv = lq = Counter()
+        if has_a:
+            la = Counter(self._acc_keys(fs))
+        if not has_v:
+            lv = la + Counter(high) if has_a else Counter(low)
+        if not has_q:
+            lq = lv + Counter(high)
+        if not has_a:
+            la = lv + Counter(low)
+        return lq, lv, la
+
+    def _force_full_rate(self, force: np.ndarray, fs: float, target: Counter) -> np.ndarray:
+        """The force through the chain at the record's rate (padded, topped up to the
+        total filter ``target`` when ``consistent``, unpadded)."""
+        npad = int(round(self.pad * fs))
+        f = np.asarray(force, float)
+        if npad > 0:
+            f = np.pad(f, [(npad, npad)] + [(0, 0)] * (f.ndim - 1))
+        if self.consistent:
+            f = self._top_up(f, target, fs, 0)
+        if npad > 0:
+            f = f[npad:f.shape[0] - npad]
+        return f
+
+    def _measured_force(self, rec: Recording, dofs: Sequence[str]) -> tuple[np.ndarray, int]:
+        """(the kept force samples as ``apply`` returns them, start index) of a measured
+        record, memoised: ``apply_simulated`` needs them on every call, and they depend
+        on nothing simulated."""
+        forces = [k for k in rec.channels if k.startswith("force_")]
+        key = ("measured_force", repr(self), tuple(dofs), record_digest(rec, forces))
+
+        def compute() -> tuple[np.ndarray, int]:
+            fs = rec.fs
+            present = lambda qty, d: rec.get(qty, d) is not None
+            ledgers = [led for d in dofs for led in self._dof_ledgers(
+                fs, present("disp", d), present("vel", d), present("acc", d))]
+            f = self._force_full_rate(self.force(rec, dofs), fs, _union(ledgers))
+            f, sl, i0 = self._finish_force(rec, dofs, f)
+            return f[sl].copy(), i0
+
+        f, i0 = memoised(key, compute)
+        return f.copy(), i0
 
     def _top_up(self, x: np.ndarray, missing: Counter, fs: float, axis: int) -> np.ndarray:
         for key in sorted(missing, key=repr):
@@ -474,9 +508,10 @@ class Processing:
         return max(1, int(round(fs / self.decimate_to)))
 
     def _finish(self, rec: Recording, dofs: Sequence[str], q: np.ndarray, v: np.ndarray,
-                a: np.ndarray, f: np.ndarray, need: str = "qva") -> States:
+                a: np.ndarray, f: np.ndarray | None, need: str = "qva") -> States:
         """Decimate (zero-phase anti-aliasing) and cut to the kept window (only the
-        ``need``ed of q, v, a: the others stay NaN, see ``_derive_arrays``)."""
+        ``need``ed of q, v, a: the others stay NaN, see ``_derive_arrays``; ``f=None``:
+        the measured record's processed force, memoised)."""
         fs = rec.fs
         k = self.decimation(fs)
         if k > 1:
@@ -484,26 +519,49 @@ class Processing:
             cut = 0.8 * fs / k / 2
             q, v, a = (self._filt(x, "low", cut, fs, axis=-2) if name in need else x
                        for name, x in (("q", q), ("v", v), ("a", a)))
-            if self.consistent:
-                f = self._filt(f, "low", cut, fs, axis=0)
+        if f is None:  # apply_simulated: the measured record's, memoised
+            f_kept, i0 = self._measured_force(rec, dofs)
+            sl = slice(i0, len(rec) - int(round(self.trim * fs)), k)
+        else:
+            f, sl, i0 = self._finish_force(rec, dofs, f)
+            f_kept = f[sl].copy()
+
+        def cut(name: str, x: np.ndarray) -> np.ndarray:
+            y = x[..., sl, :]
+            return y.copy() if name in need else np.broadcast_to(np.float64(np.nan), y.shape)
+
+        return States(rec.time[sl].copy(), cut("q", q), cut("v", v), cut("a", a), f_kept,
+                      rec.name, rec.has_force(dofs), i0, k)
+
+    def _finish_force(self, rec: Recording, dofs: Sequence[str], f: np.ndarray
+                      ) -> tuple[np.ndarray, slice, int]:
+        """The force decimated like the states (when ``consistent``), the kept window's
+        slice and its start index (errors when nothing is left)."""
+        fs = rec.fs
+        k = self.decimation(fs)
+        if k > 1 and self.consistent:
+            f = self._filt(f, "low", 0.8 * fs / k / 2, fs, axis=0)
         edge = int(round(self.trim * fs))
         i0 = max(self.start_index(rec, dofs), edge)
         i1 = len(rec) - edge
         if i1 - i0 < 2 * k:
             raise ValueError(f"{rec.name}: nothing left after start/trim "
                              f"(start index {i0}, end {i1})")
-        sl = slice(i0, i1, k)
-        def cut(name: str, x: np.ndarray) -> np.ndarray:
-            y = x[..., sl, :]
-            return y.copy() if name in need else np.broadcast_to(np.float64(np.nan), y.shape)
-
-        return States(rec.time[sl].copy(), cut("q", q), cut("v", v), cut("a", a), f[sl].copy(),
-                      rec.name, rec.has_force(dofs), i0, k)
+        return f, slice(i0, i1, k), i0
 
     def apply(self, rec: Recording, dofs: Sequence[str]) -> States:
-        """Run the chain on one recording (measured or simulated, see simulated_recording)."""
-        q, v, a, f = self.derive(rec, dofs)
-        return self._finish(rec, dofs, q, v, a, f)
+        """Run the chain on one recording (measured or simulated, see simulated_recording).
+
+        Memoised on the record's samples and the chain's settings (``chain_cache``): the
+        output-error problems of a fit or a diagnosis process the same measured records
+        many times.  Each call returns its own copy."""
+        key = ("apply", repr(self), tuple(dofs), record_digest(rec))
+
+        def compute() -> States:
+            q, v, a, f = self.derive(rec, dofs)
+            return self._finish(rec, dofs, q, v, a, f)
+
+        return _copy_states(memoised(key, compute))
 
     def apply_simulated(self, measured: Recording, dofs: Sequence[str], q: np.ndarray,
                         v: np.ndarray, a: np.ndarray, need: str = "qva") -> States:
@@ -530,9 +588,8 @@ class Processing:
                 return None
             return sim[qty][..., index[d]]
 
-        qq, vv, aa, f = self._derive_arrays(measured.fs, dofs, given,
-                                            self.force(measured, dofs), need)
-        return self._finish(measured, dofs, qq, vv, aa, f, need)
+        qq, vv, aa, _ = self._derive_arrays(measured.fs, dofs, given, None, need)
+        return self._finish(measured, dofs, qq, vv, aa, None, need)
 
     def with_(self, **kw: Any) -> "Processing":
         return replace(self, **kw)
@@ -625,6 +682,20 @@ def _sosfiltfilt(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, axis: int,
     if padlen > 0:
         y = y[sl(padlen, -padlen)]
     return y
+
+
+def _union(ledgers: Iterable[Counter]) -> Counter:
+    """The total filter: every filter as often as the ledger that has it most."""
+    target: Counter = Counter()
+    for led in ledgers:
+        target |= led
+    return target
+
+
+def _copy_states(st: States) -> States:
+    """A States whose arrays the caller may modify (the memo's stay as computed)."""
+    cp = lambda x: x.copy() if isinstance(x, np.ndarray) else x
+    return replace(st, t=cp(st.t), q=cp(st.q), v=cp(st.v), a=cp(st.a), f=cp(st.f))
 
 
 def simulated_recording(measured: Recording, dofs: Sequence[str] | Any, q: np.ndarray,

@@ -26,10 +26,11 @@ where the paper is vague, each measured in ``benchmarks/bench_siva_choices.py``:
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -161,7 +162,7 @@ class _Pool:
         idx = torch.randint(0, len(self), (n,), generator=rng)
         return _Batch(self.q[idx], self.v[idx], self.a[idx], self.f[idx],
                       None if self.phi is None else self.phi[idx],
-                      None if self.a0 is None else self.a0[idx])
+                      None if self.a0 is None else self.a0[idx], idx)
 
 
 @dataclass
@@ -172,6 +173,7 @@ class _Batch:
     f: torch.Tensor
     phi: torch.Tensor | None
     a0: torch.Tensor | None
+    idx: torch.Tensor | None = None  # the samples' rows in their pool
 
     def model_acc(self, structure: Structure, theta: torch.Tensor) -> torch.Tensor:
         """Model accelerations at this batch's states, one parameter set per sample."""
@@ -202,10 +204,15 @@ class _ValidationSurrogate:
         self.sy, self.sq, self.sv = rms(self.y), rms(self.q), rms(self.v)
         self.n = self.y.shape[0]
         self.names = [r.name for r in lin.records]
+        # the real features of every sample (elementwise, so indexing them is bit-identical
+        # to computing them for the drawn rows)
+        self.real = torch.cat([self.q / self.sq, self.v / self.sv, self.y / self.sy], -1).float()
         edges = np.cumsum([0] + [ser.T for ser in lin.series])
         self.bounds = list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
     def features(self, idx: torch.Tensor, x: torch.Tensor | None) -> torch.Tensor:
+        if x is None:
+            return self.real[idx]
         y = self.y[idx]
         if x is not None:
             y = y + self.r0[idx] + (self.J[idx] * x[:, None, :]).sum(-1)
@@ -283,6 +290,10 @@ class SivaTrainer:
         ref = self.train
         rms = lambda x: x.pow(2).mean(0).sqrt().clamp_min(1e-12)
         self._scale = {"q": rms(ref.q), "v": rms(ref.v), "a": rms(ref.a)}
+        # D's "real" input for every sample of the pool it is drawn from, computed once
+        # (elementwise: each row is what _features gives for a drawn batch, bit for bit)
+        pool = self.val if self.val is not None else self.train
+        self._real_features = self._features(pool.q, pool.v, pool.a)
         if not self.initialised:
             self._initialise(train)
 
@@ -341,16 +352,18 @@ class SivaTrainer:
             theta = self.generator(self._noise(B))
             # discriminator step: real validation accelerations vs the model's at the same states
             fake_val = bv.model_acc(st, theta)
-            real_logit = self.discriminator(self._features(bv.q, bv.v, bv.a))
+            real_logit = self.discriminator(self._real_features[bv.idx])
             fake_logit = self.discriminator(self._features(bv.q, bv.v, fake_val.detach()))
-            loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
-                      + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+            bce = F.binary_cross_entropy_with_logits
+            loss_d = (bce(real_logit, self._label(real_logit, 1.0))
+                      + bce(fake_logit, self._label(fake_logit, 0.0)))
             self.opt_d.zero_grad(set_to_none=True)
             loss_d.backward()
             self.opt_d.step()
             # generator step: fool the updated D on validation, match training accelerations (eq. 4)
-            logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
-            loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+            with self._d_frozen():
+                logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
+            loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
             loss_mse = ((bt.model_acc(st, theta) - bt.a) / sa).pow(2).mean()
             loss_p = loss_adv + s.gamma * loss_mse
             self.opt_g.zero_grad(set_to_none=True)
@@ -436,13 +449,15 @@ class SivaTrainer:
                 fake = ph.val.features(idx, x)
                 real_logit = self.discriminator(real)
                 fake_logit = self.discriminator(fake.detach())
-                loss_d = (F.binary_cross_entropy_with_logits(real_logit, torch.ones_like(real_logit))
-                          + F.binary_cross_entropy_with_logits(fake_logit, torch.zeros_like(fake_logit)))
+                bce = F.binary_cross_entropy_with_logits
+                loss_d = (bce(real_logit, self._label(real_logit, 1.0))
+                          + bce(fake_logit, self._label(fake_logit, 0.0)))
                 self.opt_d.zero_grad(set_to_none=True)
                 loss_d.backward()
                 self.opt_d.step()
-                logit = self.discriminator(fake)
-                loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+                with self._d_frozen():
+                    logit = self.discriminator(fake)
+                loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
             loss_p = loss_adv + s.gamma * loss_fit
             self.opt_g.zero_grad(set_to_none=True)
             loss_p.backward()
@@ -456,6 +471,34 @@ class SivaTrainer:
         if harvested:
             self.oe_targets_.append(ph.lin.to_theta(target))
         return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    def _label(self, logit: torch.Tensor, value: float) -> torch.Tensor:
+        """A constant BCE target like ``logit`` (reused: the same few shapes every step;
+        nothing writes to it)."""
+        key = (tuple(logit.shape), logit.dtype, value)
+        labels = self.__dict__.setdefault("_labels", {})
+        t = labels.get(key)
+        if t is None:
+            t = labels[key] = torch.full_like(logit, value)
+        return t
+
+    @contextlib.contextmanager
+    def _d_frozen(self) -> Iterator[None]:
+        """D's weights as constants while building the generator's loss: its backward pass
+        then computes only the gradient the generator needs (the weights' gradients were
+        discarded by D's next ``zero_grad`` anyway; the generator's are bit-identical)."""
+        d = self.discriminator
+        cached = self.__dict__.get("_d_params")
+        if cached is None or cached[0] is not d:  # parameters() walks the modules: ~50 us
+            cached = self._d_params = (d, list(d.parameters()))
+        params = [p for p in cached[1] if p.requires_grad]
+        for p in params:
+            p.requires_grad_(False)
+        try:
+            yield
+        finally:
+            for p in params:
+                p.requires_grad_(True)
 
     def _set_lr(self, lr: float) -> None:
         for opt in (self.opt_g, self.opt_d):

@@ -147,8 +147,8 @@ def run(rounds: int, clients: int, data_dir: Path, *, seed: int = 1,
         max_kill_after_s: float = 5.0, replay_prefixes: bool = True,
         env: dict[str, str] | None = None) -> dict[str, Any]:
     """The experiment; returns the figures (see the module docstring)."""
-    from service.mcap_log import read_events
-    from service.replay import log_files, replay
+    from service.storage.eventlog import read_events
+    from service.replay.run import log_files, replay
 
     Server = _server_class()
     rnd = random.Random(seed)

@@ -10,7 +10,7 @@ import time
 from fastapi.testclient import TestClient
 from synthetic import free_decay
 
-from service.app import create_app
+from service.api.app import create_app
 from service.settings import Settings
 
 

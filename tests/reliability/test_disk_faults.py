@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from service import store as store_mod
-from service.store import Store
+from service.storage import store as store_mod
+from service.storage.recordings import UploadFacts
+from service.storage.store import Store
 
 CSV = {"content-type": "text/csv"}
 
@@ -83,7 +84,7 @@ def test_disk_full_gives_507_and_everything_recovers(make_server, tmpfs, oscilla
         assert c.put("/v1/systems/other", json=linear).status_code == 201
     srv.stop()
     # the log holds every acknowledged recording, readable past the failed writes
-    from service.mcap_log import read_events
+    from service.storage.eventlog import read_events
 
     logged = {e.event.id for p in (disk.path / "logs" / "osc").glob("*.mcap")
               for e in read_events(p) if e.topic == "/siva/recording"}
@@ -142,7 +143,7 @@ def test_store_write_failures_change_nothing(tmp_path, monkeypatch, err):
         with pytest.raises(OSError):
             st.put_spec("b", {"name": "b"})
         with pytest.raises(OSError):
-            st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info={})
+            st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info=UploadFacts())
     assert st.systems() == ["a"] and st.recordings("a") == []
     assert not (tmp_path / "systems" / "b").exists()
     # a failing write-ahead log aborts the upload: nothing committed, no orphan raw file
@@ -150,7 +151,7 @@ def test_store_write_failures_change_nothing(tmp_path, monkeypatch, err):
         raise OSError(errno.ENOSPC, "log full")
 
     with pytest.raises(OSError):
-        st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info={},
+        st.add_recording("a", b"x", role="train", fmt="csv", filename="f", info=UploadFacts(),
                          before_commit=log_fails)
     assert st.recordings("a") == []
     assert list((tmp_path / "systems" / "a" / "recordings").iterdir()) == []

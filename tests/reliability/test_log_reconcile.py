@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from service.mcap_log import (TOPIC_RECORDING, TOPIC_REPAIR, _good_records, is_finished,
-                              read_events)
+from service.storage.eventlog import TOPIC_RECORDING, TOPIC_REPAIR, is_finished, read_events
+from service.storage.eventlog.reader import _good_records
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
@@ -167,8 +167,9 @@ def test_restart_after_log_damage_replays(base: Path, tmp_path: Path, damage: st
 def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path) -> None:
     """A system deleted and created again (another spec) whose log was then repaired: the
     replay starts at the repair's baseline and does not trip over the older incarnation."""
-    from service.mcap_log import EventLog
-    from service.replay import _plan, explains, log_files
+    from service.storage.eventlog import EventLog
+    from service.replay.plan import log_files, plan_replay
+    from service.replay.run import explains
 
     def spec(k: str) -> dict:
         return {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [
@@ -192,7 +193,7 @@ def test_a_baseline_supersedes_earlier_files_even_of_another_spec(tmp_path: Path
         new.log_snapshot("s", {**est, "epoch": 12})
     files = log_files(tmp_path / "logs" / "s")
     assert len(files) == 2
-    plan = _plan(files)
+    plan = plan_replay(files)
     assert plan.spec.spec == spec("k") and set(plan.recordings) == {"r1", "r2"}
     assert [d.epoch for d in plan.datasets] == [10] and plan.final_epoch == 12
     assert plan.baselines[0].baseline_epoch == 10 and plan.baselines[0].state_bytes() == b"state"

@@ -12,7 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from service.limits import LimitError, check_structure, parse_spec_body
+from service.api.http_errors import status_of
+from service.errors import ServiceError
+from service.limits import check_structure, parse_spec_body
 from service.settings import Settings
 from siva_core import RecordingError, SpecError, Structure
 
@@ -29,7 +31,7 @@ json_values = st.recursive(leaves, lambda inner: st.lists(inner, max_size=4)
                            max_leaves=30)
 
 #: the exceptions SivaService.put_system maps to a 4xx
-SPEC_REFUSALS = (LimitError, SpecError, TypeError, ValueError, KeyError, AttributeError,
+SPEC_REFUSALS = (ServiceError, SpecError, TypeError, ValueError, KeyError, AttributeError,
                  OverflowError, RecursionError)
 
 
@@ -75,8 +77,8 @@ def test_spec_nesting_is_refused_with_4xx(depth, kind):
     raw = (b"[" * depth + b"]" * depth) if kind == "json" else (b"x = " + b"[" * depth)
     try:
         parse_spec_body(raw, kind, SETTINGS)
-    except LimitError as exc:
-        assert exc.status in (400, 413, 422)
+    except ServiceError as exc:
+        assert status_of(exc) in (400, 413, 422)
 
 
 @FAST
@@ -85,8 +87,8 @@ def test_spec_integer_sizes(digits):
     raw = b'{"mass": {"x": ' + b"7" * digits + b"}}"
     try:
         v = parse_spec_body(raw, "json", SETTINGS)
-    except LimitError as exc:
-        assert exc.status == 422 and digits > 12
+    except ServiceError as exc:
+        assert status_of(exc) == 422 and digits > 12
     else:
         assert v["mass"]["x"] == int("7" * digits)
 
@@ -119,7 +121,7 @@ def _mutate(data: bytes, rnd: random.Random, n: int) -> bytes:
 @FAST
 @given(fmt=st.sampled_from(["csv", "json", "npz", "mcap"]), data=st.binary(max_size=400))
 def test_upload_parser_arbitrary_bytes(linear_structure, fmt, data):
-    from service.worker import parse_upload
+    from service.storage.uploads import parse_upload
 
     try:
         parse_upload(linear_structure, data, fmt, "u")
@@ -130,7 +132,7 @@ def test_upload_parser_arbitrary_bytes(linear_structure, fmt, data):
 @FAST
 @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 20))
 def test_upload_parser_mutated_csv(linear_structure, seed, n):
-    from service.worker import parse_upload
+    from service.storage.uploads import parse_upload
 
     try:
         parse_upload(linear_structure, _mutate(GOOD_CSV, random.Random(seed), n), "csv", "u")
@@ -142,7 +144,7 @@ def test_upload_parser_mutated_csv(linear_structure, seed, n):
 @pytest.fixture(scope="module")
 def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
     """A finished log of 12 recording events; returns its bytes and the event ids."""
-    from service.mcap_log import EventLog
+    from service.storage.eventlog import EventLog
 
     d = tmp_path_factory.mktemp("log")
     log = EventLog(d)
@@ -156,7 +158,7 @@ def event_log(tmp_path_factory) -> tuple[bytes, list[str]]:
 
 
 def _read(tmp: Path, raw: bytes) -> list:
-    from service.mcap_log import read_events
+    from service.storage.eventlog import read_events
 
     p = tmp / "x.mcap"
     p.write_bytes(raw)

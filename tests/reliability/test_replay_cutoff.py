@@ -3,8 +3,8 @@ data-set changes logged after it describe training nobody saw (before: the repla
 past the snapshot and differed from the live estimate by 13-45 standard deviations)."""
 from __future__ import annotations
 
-from service.mcap_log import EventLog
-from service.replay import _plan, log_files
+from service.storage.eventlog import EventLog
+from service.replay.plan import log_files, plan_replay
 
 SPEC = {"name": "s", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [
     {"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}}]}
@@ -32,7 +32,7 @@ def _log(tmp_path, events) -> list:
 def test_cut_off_log_ends_at_its_last_snapshot(tmp_path):
     files = _log(tmp_path, [("dataset", 0, ["r1", "r2"]), ("snapshot", 4, None),
                             ("dataset", 6, ["r2", "r1"])])
-    plan = _plan(log_files(files))
+    plan = plan_replay(log_files(files))
     assert plan.final_epoch == 4
     assert [d.epoch for d in plan.datasets] == [0]
     assert plan.final_snapshot is not None and plan.final_snapshot.epoch == 4
@@ -44,6 +44,6 @@ def test_earlier_logs_keep_changes_after_their_last_snapshot(tmp_path):
     first = _log(tmp_path / "a", [("dataset", 0, ["r1", "r2"]), ("snapshot", 4, None),
                                   ("dataset", 5, ["r2", "r1"])])
     second = _log(tmp_path / "b", [("dataset", 8, ["r2", "r1"]), ("snapshot", 10, None)])
-    plan = _plan([first[0], second[0]])
+    plan = plan_replay([first[0], second[0]])
     assert [d.epoch for d in plan.datasets] == [0, 5, 8]
     assert plan.final_epoch == 10

@@ -117,7 +117,7 @@ def test_host_and_origin_rules():
     """The allow-lists as functions: defaults, configured, wildcard binds, extra origins."""
     import socket
 
-    from service.security import allowed_hosts, cross_site
+    from service.api.security import allowed_hosts, cross_site
 
     loop = allowed_hosts(None, "127.0.0.1")
     assert {"localhost", "127.0.0.1", "::1"} <= loop and "evil.example" not in loop

@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from service import executor as executor_mod
-from service.app import SivaService
+from service.fleet import executor as executor_mod
+from service.systems import SivaService
 from service.settings import Settings
 
 SPEC = {"name": "a", "dofs": ["x"], "mass": {"x": 0.05}, "elements": [

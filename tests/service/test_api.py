@@ -183,7 +183,7 @@ def test_event_log_written(client, server, linear, oscillator):
     assert client.put("/v1/systems/api-log", json=linear).status_code == 201
     assert client.post("/v1/systems/api-log/recordings?role=train", content=oscillator(),
                        headers={"content-type": "text/csv"}).status_code == 202
-    from service.mcap_log import read_events
+    from service.storage.eventlog import read_events
 
     files = list((server.data_dir / "logs" / "api-log").glob("*.mcap"))
     assert len(files) == 1

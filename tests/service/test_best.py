@@ -115,7 +115,7 @@ def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
 def duffing_problem(spec_of):
     from siva_core import Recording, Structure
 
-    from service.uploads import processing_for
+    from service.storage.uploads import processing_for
 
     st = Structure.from_dict(spec_of("duffing"))
     path = DUFFING_DIR / "train_v5.csv"
@@ -172,8 +172,8 @@ def test_refine_settings(tmp_path):
         Settings(data_dir=tmp_path, refine_max_records=0)
     from siva_core import Structure
 
-    from service.store import Store
-    from service.worker import SystemWorker
+    from service.storage.store import Store
+    from service.trainer import SystemWorker
 
     spec = {"name": "lin", "dofs": ["x"], "mass": {"x": 0.05},
             "elements": [{"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}}]}

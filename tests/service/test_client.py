@@ -491,7 +491,7 @@ def test_delete_removes_or_archives_the_event_logs(
     assert not (data / "logs" / "kept").exists()
     archived = list((data / "archive" / "logs").glob("kept-*/*.mcap"))
     assert archived, list((data / "archive").rglob("*"))
-    from service.mcap_log import read_events
+    from service.storage.eventlog import read_events
     assert any(e.topic == "/siva/recording" for e in read_events(archived[0]))  # still readable
     # the name is free again, and its new log starts afresh
     assert _cli(["register", "gone", str(SPEC)], capsys)[0] == 0

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from service.drift import modal_quantities
+from service.monitoring.drift import modal_quantities
 
 TRUTH = {"b": 0.5, "b_nl": 4000.0, "k": 300.0, "k_nl": 3e8}
 M = 0.05

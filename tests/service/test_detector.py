@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from service.detector import ChangeDetector, DetectorSettings, cusum_threshold
+from service.monitoring.cusum import cusum_threshold
+from service.monitoring.detector import ChangeDetector, DetectorSettings
 
 QS = [f"q{i}" for i in range(10)]
 
@@ -129,7 +130,7 @@ def test_cleared_alarm_message_says_cleared_once():
 
 
 def test_message_interval_across_zero_is_signed():
-    from service.detector import alarm_message
+    from service.monitoring.alarm_text import alarm_message
     msg = alarm_message({"parameter": "f1_hz", "direction": "decrease", "state": "raised",
                          "change_rel": -0.0004, "change_rel_ci95": [-0.006, 0.005],
                          "raised_index": 9, "change_since_index": 7})

@@ -7,10 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from service.ray_host import MAX_QUEUED_EVENTS, EventQueue
-from service.ray_placement import Placement, read_placement
+from service.fleet.ray_host import MAX_QUEUED_EVENTS, EventQueue
+from service.fleet.ray_placement import Placement, read_placement
 from service.settings import Settings
-from service.store import Store, TrainerStoreView, UnknownSystem
+from service.errors import UnknownSystem
+from service.storage.recordings import UploadFacts
+from service.storage.store import Store
+from service.storage.trainer_view import TrainerStoreView
 
 
 def test_placement_packs_systems_and_survives_a_restart(tmp_path: Path) -> None:
@@ -51,7 +54,7 @@ def test_event_queue_is_bounded_and_keeps_dataset_events() -> None:
 
 def _upload(store: Store, name: str, raw: bytes, role: str) -> str:
     meta, _ = store.add_recording(name, raw, role=role, fmt="csv", filename="x.csv",
-                                  info={"n_samples": 3, "fs": 100.0})
+                                  info=UploadFacts(n_samples=3, fs=100.0))
     return meta.id
 
 
@@ -91,3 +94,47 @@ def test_executor_settings_are_checked() -> None:
         Settings(ray_systems_per_actor=0)
     assert Settings(ray_address="").ray_address is None
     assert Settings().executor == "threads"  # `make run` unchanged
+
+
+def test_an_unreachable_trainer_actor_is_a_domain_error_answered_503() -> None:
+    """The Ray handle raises a domain error (``Unavailable``), not an HTTP one; the API's
+    one mapping (``http_errors``) answers it 503 with Retry-After."""
+    from fastapi import FastAPI
+    from fastapi.testclient import TestClient
+
+    from service.api import http_errors
+    from service.errors import Unavailable
+    from service.fleet.ray_trainer import RayTrainer
+
+    class Call:
+        def remote(self, *args: object) -> object:
+            return object()
+
+    class Host:
+        reset_drift = Call()
+
+    class Ray:
+        def get(self, ref: object, timeout: float | None = None) -> object:
+            raise TimeoutError("the actor is restarting")
+
+    class Executor:
+        ray = Ray()
+
+        def host(self, host_id: str) -> Host:
+            return Host()
+
+    handle = RayTrainer(Executor(), "s", None, "h0")  # type: ignore[arg-type]
+    with pytest.raises(Unavailable, match="trainer actor is unavailable") as caught:
+        handle.reset_drift()
+    assert http_errors.status_of(caught.value) == 503
+
+    app = FastAPI()
+    http_errors.install(app)
+
+    @app.post("/reset")
+    def reset() -> None:
+        handle.reset_drift()
+
+    res = TestClient(app).post("/reset")
+    assert res.status_code == 503 and res.headers["retry-after"] == "60"
+    assert "trainer actor is unavailable" in res.json()["detail"]

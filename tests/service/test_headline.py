@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from service.estimate import headline
-from service.monitor import combine
+from service.trainer.estimate import headline
+from service.monitoring.monitor import combine
 
 
 @pytest.fixture

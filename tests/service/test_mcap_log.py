@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from service.fingerprint import platform_fingerprint
-from service.mcap_log import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC,
-                              EventLog, RecordingEvent, SnapshotEvent, is_finished, read_events,
-                              recover)
+from service.storage.eventlog.fingerprint import platform_fingerprint
+from service.storage.eventlog import (TOPIC_DATASET, TOPIC_RECORDING, TOPIC_SNAPSHOT, TOPIC_SPEC,
+                                      EventLog, RecordingEvent, SnapshotEvent, is_finished,
+                                      read_events, recover)
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = {"name": "duffing", "dofs": ["x"], "mass": {"x": 0.05},
@@ -40,6 +40,22 @@ def _fill(ev: EventLog, system: str = "duffing", n_snap: int = 3) -> None:
         ev.log_snapshot(system, _snapshot(5 * (e + 1)))
 
 
+def test_the_logged_estimate_is_the_api_estimate_without_importing_it() -> None:
+    """The log keeps its own estimate model (it does not import the HTTP schemas); its
+    typed keys are the API's contract keys, with the same types, so the two cannot drift."""
+    from service.api.schemas import Estimate
+    from service.storage.eventlog import LoggedEstimate
+
+    logged = LoggedEstimate.model_fields
+    api = Estimate.model_fields
+    assert set(logged) <= set(api)
+    for key, field in logged.items():
+        assert field.is_required() and api[key].is_required(), key
+    body = {"parameters": {"k": {"mean": 1.0}}, "discriminator": {}, "epoch": 3,
+            "converged": False, "n_recordings": {"train": 1}, "state": "training"}
+    assert LoggedEstimate.model_validate(body).model_dump(mode="json") == body
+
+
 def test_standard_reader_sees_schemas_channels_and_summary(tmp_path: Path) -> None:
     ev = EventLog(tmp_path, settings={"seed": 7, "preset": "fast"})
     _fill(ev)
@@ -60,9 +76,11 @@ def test_standard_reader_sees_schemas_channels_and_summary(tmp_path: Path) -> No
             assert schema.encoding == "jsonschema"
             js = json.loads(schema.data)
             assert js["type"] == "object" and "properties" in js
-        # the snapshot schema embeds the HTTP API's Estimate model
+        # the snapshot schema types the estimate's contract keys (the log's own model)
         snap_schema = json.loads(summary.schemas[topics[TOPIC_SNAPSHOT].schema_id].data)
-        assert "Estimate" in json.dumps(snap_schema)
+        est = snap_schema["$defs"]["LoggedEstimate"]
+        assert {"parameters", "discriminator", "epoch", "converged",
+                "n_recordings"} <= set(est["required"])
         msgs = [(c.topic, json.loads(m.data)) for _s, c, m in reader.iter_messages()]
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert [t for t, _ in msgs] == [TOPIC_SPEC, TOPIC_RECORDING, TOPIC_RECORDING, TOPIC_DATASET,
@@ -166,7 +184,7 @@ def test_garbage_tail_is_cut(tmp_path: Path) -> None:
 _KILL_SCRIPT = r"""
 import os, signal, sys
 sys.path.insert(0, {root!r})
-from service.mcap_log import EventLog
+from service.storage.eventlog import EventLog
 ev = EventLog({data!r})
 ev.log_spec("sys1", {{"name": "m", "dofs": ["x"]}})
 ev.log_recording("sys1", "r1", "train", b"time,acc_x\n0,1\n", "csv", 0)

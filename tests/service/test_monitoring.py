@@ -108,7 +108,7 @@ def test_headline_drift_and_idle(srv, poll):
     assert after["reference"] is None and after["alarms"] == []
     srv.assert_no_bugs()
     # ``siva replay`` of the event log carries the logged headline and the alarm history
-    from service.replay import replay
+    from service.replay.run import replay
 
     srv.stop()
     logs = sorted(srv.data_dir.rglob("*osc*.mcap")) or sorted(srv.data_dir.rglob("*.mcap"))

@@ -35,9 +35,9 @@ FIX = ROOT / "tests" / "fixtures"
 DATA = Path(os.environ.get("SIVA_SHARED_DATA") or ROOT.parent / "shared" / "data") / "duffing"
 sys.path.insert(0, str(ROOT))
 
-from service.mcap_log import (TOPIC_DATASET, TOPIC_SNAPSHOT, EventLog, is_finished,  # noqa: E402
+from service.storage.eventlog import (TOPIC_DATASET, TOPIC_SNAPSHOT, EventLog, is_finished,  # noqa: E402
                               read_events)
-from service.replay import REPRODUCED_TOLERANCE_IN_STD, ReplayError, replay  # noqa: E402
+from service.replay.run import REPRODUCED_TOLERANCE_IN_STD, ReplayError, replay  # noqa: E402
 
 SPEC_TOML = ROOT / "examples" / "models" / "duffing.toml"
 #: the clean run made with torch's portable kernels (ATEN_CPU_CAPABILITY=default)

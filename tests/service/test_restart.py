@@ -5,7 +5,8 @@ from __future__ import annotations
 import re
 import time
 
-from service.store import RecordingMeta, ReplayBuffer
+from service.storage.recordings import RecordingMeta
+from service.trainer.replay_buffer import ReplayBuffer
 
 
 def _meta(i: int, role: str) -> RecordingMeta:

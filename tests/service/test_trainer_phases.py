@@ -24,7 +24,7 @@ _conftest = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_conftest)
 linear_spec, oscillator_csv = _conftest.linear_spec, _conftest.oscillator_csv
 
-from service.detector import YOUNG_Z, ChangeDetector, DetectorSettings
+from service.monitoring.detector import YOUNG_Z, ChangeDetector, DetectorSettings
 from service.trainer.readout import ENSEMBLE_MIN_SAMPLES, read_ensemble
 from service.trainer.validation import validation_view
 
@@ -32,8 +32,8 @@ from service.trainer.validation import validation_view
 # --------------------------------------------------------------------------- live
 @pytest.mark.slow  # ~40 s on an idle 2-core machine (both phases, validation, a replay)
 def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_path: Path):
-    from service.mcap_log import TOPIC_ANCHOR, read_events
-    from service.replay import replay
+    from service.storage.eventlog import TOPIC_ANCHOR, read_events
+    from service.replay.run import replay
 
     srv = make_server(env={"SIVA_SNAPSHOT_EVERY": "5", "SIVA_IDLE_AFTER_EPOCHS": "40"},
                       data_dir=tmp_path / "data")
@@ -66,7 +66,7 @@ def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_pat
         assert seen_provisional
         assert all(len(s["ci95"]) == 2 for s in est["ensemble"].values())
         assert est["ensemble_samples"] >= ENSEMBLE_MIN_SAMPLES
-        assert est["anchor"]["source"] == "best"
+        assert est["anchor"]["source"] == "headline"  # after the per-record fits, settled
         val = est["validation"]
         assert val["verdict"] in ("accepted", "rejected") and val["of"] == "headline"
         assert val["T"] is not None and 0.0 <= val["p_value"] <= 1.0
@@ -97,7 +97,7 @@ def test_two_phases_provisional_validation_and_exact_replay(make_server, tmp_pat
     srv.stop()
     logs = sorted((tmp_path / "data" / "logs" / "osc").glob("*.mcap"))
     anchors = [e.event for f in logs for e in read_events(f) if e.topic == TOPIC_ANCHOR]
-    assert [a.source for a in anchors][:2] == ["best", "headline"] and anchors[0].n_noise > 0
+    assert [a.source for a in anchors][:2] == ["headline", "headline"] and anchors[0].n_noise > 0
     out = replay(logs)
     cmp = out["replay"]["compared_to_log"]
     assert cmp["identical"], cmp

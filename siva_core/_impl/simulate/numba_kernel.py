@@ -69,8 +69,29 @@ def _translate(expr: str | None, names: dict[str, str]) -> str:
     return ast.unparse(tree)
 
 
+_SOURCES: dict[tuple, str] = {}
+
+
+def _signature(structure: Any) -> tuple:
+    """What the kernel source depends on: DOF count, parameter order, and each element's
+    kind (name, scalar expression, coefficients), parameters and DOF indices."""
+    return (structure.n_dof, tuple(structure.parameters),
+            tuple((el.kind.name, el.kind.expr, tuple(el.kind.coefficients), tuple(el.params),
+                   el.i, el.j) for el in structure.elements))
+
+
 def _kernel_source(structure: Any) -> str:
-    """Python/numba source of the kernel for this structure's signature."""
+    """Python/numba source of the kernel for this structure's signature (memoised per
+    signature: writing it parses every element's expression, and a refinement or a
+    diagnosis asks for the kernel on every simulation -- ~1 ms each, 8 % of a fit)."""
+    sig = _signature(structure)
+    src = _SOURCES.get(sig)
+    if src is None:
+        src = _SOURCES[sig] = _write_kernel_source(structure)
+    return src
+
+
+def _write_kernel_source(structure: Any) -> str:
     n = structure.n_dof
     pnames = list(structure.parameters)
     slot = {p: k for k, p in enumerate(pnames)}

@@ -1,0 +1,217 @@
+"""The front's handle of one system trained in a Ray trainer host: what the routes call
+(``TrainerHandle``, ``executor.py``), answered from the poller's copies so that no read
+ever blocks on an actor (``ray_executor.py`` polls)."""
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING, Any
+
+from siva_core import Structure
+
+from ..errors import Unavailable
+from ..trainer import base_snapshot
+
+if TYPE_CHECKING:
+    from .ray_executor import RayExecutor
+
+log = logging.getLogger("siva.service.ray")
+
+#: a host unreachable this long is reported in /healthz (Ray is restarting it)
+UNREACHABLE_AFTER_S = 5.0
+#: drift reports: a copy younger than this is served as is; a read waits at most
+#: DRIFT_WAIT_S for a newer one; one read keeps the copy refreshed for DRIFT_WANTED_S
+DRIFT_FRESH_S = 2.0
+DRIFT_WAIT_S = 0.4
+DRIFT_FIRST_WAIT_S = 10.0
+DRIFT_WANTED_S = 60.0
+#: a worker that has not seen the store's newest recording this long is notified again
+RENOTIFY_AFTER_S = 5.0
+
+
+class RayTrainer:
+    """The front's handle of one system trained in a trainer host (no call blocks a read)."""
+
+    def __init__(self, executor: "RayExecutor", name: str, structure: Structure,
+                 host_id: str) -> None:
+        self.executor = executor
+        self.name = name
+        self.structure = structure
+        self.host_id = host_id
+        self.generation: int | None = None
+        self._snapshot: dict[str, Any] = base_snapshot(name, "starting")
+        self._drift: dict[str, Any] = {"alarms": [], "alarm_history": [], "records": [],
+                                       "history": [], "headline": {}}
+        self._status: dict[str, Any] = {}
+        self._stopping = False
+        self.epoch = 0
+        self.heartbeat = time.monotonic()
+        self.checkpoint_error: str | None = None
+        self.start_error: str | None = None
+        self.drift_at = -1e9                     # time.monotonic() of the drift copy
+        self.drift_ref: Any = None               # a drift report on its way
+        self.drift_wanted_until = -1e9           # keep it fresh until then (it is read)
+        self._behind_since: float | None = None  # the worker lags the store since then
+
+    # ------------------------------------------------------------------ control
+    def start(self) -> None:
+        """Start (or find) the system on its host and fetch a first snapshot, so the first
+        read after a restart already shows the resumed epoch.  Never raises: when the
+        cluster cannot take it now, /healthz says so and the poller tries again."""
+        ray = self.executor.ray
+        try:
+            host = self.executor.host(self.host_id)
+            self.generation = ray.get(host.add.remote(self.name), timeout=120)
+            first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
+        except Exception as exc:  # noqa: BLE001 - cluster down or full: retried
+            self.start_error = f"{type(exc).__name__}: {exc}"
+            log.error("%s: cannot start its trainer on Ray host %s (%s); retrying",
+                      self.name, self.host_id, self.start_error)
+            self.executor.retry_start(self)
+            return
+        self.start_error = None
+        entry = first["systems"].get(self.name)
+        if entry is not None:
+            self.update(entry)
+        self.notify()  # a found-running worker may have missed a notify (front killed)
+
+    def notify(self) -> None:
+        try:
+            self.executor.host(self.host_id).notify.remote(self.name)
+        except Exception:  # noqa: BLE001 - a restarting actor re-reads every record anyway
+            log.warning("%s: notify failed (trainer host restarting?)", self.name)
+
+    def request_stop(self) -> None:
+        self._stopping = True
+
+    def stop(self, timeout: float = 60.0) -> None:
+        """Stop this system's worker (final checkpoint), waiting at most ``timeout``."""
+        self._stopping = True
+        if self.generation is None:
+            return
+        try:
+            ref = self.executor.host(self.host_id).remove.remote(self.name, self.generation,
+                                                                 timeout)
+            self.executor.ray.get(ref, timeout=timeout + 10)
+        except Exception as exc:  # noqa: BLE001 - the actor is gone or slow: nothing to stop
+            log.warning("%s: stopping the trainer on host %s: %s", self.name, self.host_id, exc)
+
+    def reset_drift(self) -> dict[str, Any]:
+        ray = self.executor.ray
+        try:
+            report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
+                             timeout=120)
+        except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
+            raise Unavailable(f"system {self.name!r}: its trainer actor is unavailable "
+                              f"({type(exc).__name__}); retry in a minute",
+                              retry_after_s=60) from None
+        self._drift, self.drift_at = report, time.monotonic()
+        return report
+
+    # ------------------------------------------------------------------ reads
+    def snapshot(self) -> dict[str, Any]:
+        return self._snapshot
+
+    def drift_report(self) -> dict[str, Any]:
+        """The drift report, fetched on demand: a report holds up to SIVA_HISTORY_LIMIT
+        snapshots (about 1 MB), too much for every poll.  A read waits at most
+        ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S`` (the first read of a
+        system ``DRIFT_FIRST_WAIT_S``), else gets the last copy; the poller keeps a report
+        that was read in the last minute fresh."""
+        now = time.monotonic()
+        self.drift_wanted_until = now + DRIFT_WANTED_S
+        if now - self.drift_at > DRIFT_FRESH_S:
+            self.request_drift()
+            # the first read has only the copy of the start (no history yet): worth a wait
+            first = self.drift_at < 0
+            self.collect_drift(timeout=DRIFT_FIRST_WAIT_S if first else DRIFT_WAIT_S)
+        return self._drift
+
+    def request_drift(self) -> None:
+        if self.drift_ref is None:
+            try:
+                self.drift_ref = self.executor.host(self.host_id).drift_report.remote(self.name)
+            except Exception:  # noqa: BLE001 - the host is restarting: the last copy
+                self.drift_ref = None
+
+    def collect_drift(self, timeout: float = 0.0) -> None:
+        """Take the requested report if it is there within ``timeout`` seconds."""
+        ref = self.drift_ref
+        if ref is None:
+            return
+        ray = self.executor.ray
+        try:
+            ready, _ = ray.wait([ref], timeout=timeout)
+            if not ready:
+                return  # still coming: the poller collects it
+            self._drift = ray.get(ref)
+            self.drift_at = time.monotonic()
+        except Exception as exc:  # noqa: BLE001 - restarting: the last copy will do
+            log.warning("%s: drift report not fetched (%s); the last copy is served",
+                        self.name, type(exc).__name__)
+        self.drift_ref = None
+
+    @property
+    def alive(self) -> bool:
+        return bool(self._status.get("alive")) and self.executor.reachable(self.host_id)
+
+    @property
+    def died(self) -> bool:
+        return bool(self._status.get("died")) and not self._stopping
+
+    @property
+    def stopping(self) -> bool:
+        return self._stopping
+
+    @property
+    def error(self) -> str | None:
+        return self._status.get("error")
+
+    def problem(self) -> str | None:
+        if self.start_error:
+            return (f"system {self.name!r}: its trainer could not be started on Ray "
+                    f"({self.start_error}); retrying")
+        down = self.executor.unreachable_for(self.host_id)
+        if down is not None and down > UNREACHABLE_AFTER_S:
+            return (f"system {self.name!r}: its trainer actor (host {self.host_id}) has not "
+                    f"answered for {down:.0f} s; Ray restarts it from the checkpoint")
+        return None
+
+    def update(self, entry: dict[str, Any]) -> None:
+        """Poller thread: take what a poll brought (reference swaps only)."""
+        status = entry.get("status") or {}
+        if self.generation is None:  # a restarted host numbers its systems anew
+            self.generation = status.get("generation")
+        elif status.get("generation") not in (None, self.generation):
+            return  # another generation of this system (the supervisor replaced it)
+        if "snapshot" in entry:
+            self._snapshot = entry["snapshot"]
+        if "drift" in entry:
+            self._drift = entry["drift"]
+        self._status = status
+        self.epoch = int(status.get("epoch", self.epoch))
+        self.heartbeat = time.monotonic() - float(status.get("heartbeat_age_s", 0.0))
+        self.checkpoint_error = status.get("checkpoint_error")
+        self._check_caught_up(status.get("last_index"))
+
+    def _check_caught_up(self, seen: int | None) -> None:
+        """Notify again when the worker has not seen the store's newest recording for
+        ``RENOTIFY_AFTER_S``: a notify is fire-and-forget, and one sent just before the
+        front was killed may never have left it."""
+        if seen is None or self._stopping:
+            return
+        try:
+            newest = self.executor.store.last_index(self.name)
+        except Exception:  # noqa: BLE001 - deleted meanwhile
+            return
+        if newest <= seen:
+            self._behind_since = None
+            return
+        now = time.monotonic()
+        if self._behind_since is None:
+            self._behind_since = now
+        elif now - self._behind_since >= RENOTIFY_AFTER_S:
+            log.debug("%s: the trainer has not seen recording %d yet; notifying again",
+                      self.name, newest)
+            self._behind_since = now
+            self.notify()

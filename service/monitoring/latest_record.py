@@ -1,0 +1,176 @@
+"""The dashboard's view of one system's latest record: measured vs simulated, residual,
+Fourier spectra and CWT, as plain JSON series.
+
+Why a server-side computation: simulating the record needs the model, the processing chain
+and the estimate, which only the service has.  It is CPU work (one simulation through the
+chain, one CWT per DOF), so the route runs it in a thread, and :class:`LatestRecordCache`
+keeps one result per system keyed by the *data version* (the latest record's id and the
+parameter values used), so a dashboard polling every few seconds costs one computation per
+new record or new estimate, not one per request.
+
+The simulation is the report's (``siva identify``): the record's measured force drives the
+model, and the simulated response passes through the *same* processing chain as the
+measurement (``OutputErrorProblem``), so the residual compares like with like.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from siva_core import Processing, Recording, Structure
+
+from ..timefmt import iso_utc
+
+#: series longer than this are decimated (by a stride) before they are sent to a browser
+MAX_POINTS = 1500
+#: CWT grid sent to the browser: frequencies x time columns
+CWT_FREQS = 64
+CWT_COLUMNS = 240
+#: a cached result younger than this is reused even when the ensemble mean moved a little
+#: (the mean changes at every snapshot; re-simulating every poll would burn a core)
+MIN_RECOMPUTE_S = 20.0
+
+
+def parameters_for_simulation(snapshot: Mapping[str, Any], free: Sequence[str]
+                              ) -> tuple[dict[str, float], str] | None:
+    """The values to simulate with and where they come from: ``best`` when the refiner
+    has one (what the service recommends), else the headline ``parameters`` means.
+    Defensive about the payload's shape: it is being reworked (``value`` or ``mean``)."""
+    best = snapshot.get("best") or {}
+    bp = best.get("parameters") if isinstance(best, Mapping) else None
+    if isinstance(bp, Mapping) and all(isinstance(bp.get(p), Mapping) for p in free):
+        vals = {p: bp[p].get("value", bp[p].get("mean")) for p in free}
+        if all(isinstance(v, (int, float)) for v in vals.values()):
+            return {p: float(v) for p, v in vals.items()}, "best"
+    params = snapshot.get("parameters") or {}
+    if all(isinstance(params.get(p), Mapping) for p in free):
+        vals = {p: params[p].get("mean", params[p].get("value")) for p in free}
+        if all(isinstance(v, (int, float)) for v in vals.values()):
+            source = snapshot.get("estimate_source") or "parameters"
+            return {p: float(v) for p, v in vals.items()}, str(source)
+    return None
+
+
+def _stride(n: int, limit: int) -> int:
+    return max(1, int(np.ceil(n / limit)))
+
+
+def _series(x: np.ndarray) -> list[float | None]:
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(x, dtype=float)]
+
+
+def compute_latest(structure: Structure, rec: Recording, processing: Processing | None,
+                   theta: Mapping[str, float]) -> dict[str, Any]:
+    """Measured vs simulated displacement [mm] of ``rec`` with ``theta``, the residual,
+    the spectra of both, and the CWT (max 1) of the measured and simulated responses."""
+    from siva_core import OutputErrorProblem, cwt, fourier_amplitude, frequency_band
+
+    th = np.array([[theta[p] for p in structure.free]], dtype=float)
+    prob = OutputErrorProblem.build(structure, [rec], processing or Processing(),
+                                    quantity="disp", theta_ref=th)
+    measured = prob.records[0].target * 1e3
+    sims = prob.simulated_states(th, 0)
+    sim_states = sims[0]
+    if sim_states is not None and sim_states.q.shape == measured.shape:
+        t = sim_states.t
+        simulated = sim_states.q * 1e3
+        diverged = False
+    else:
+        t = prob.chain.apply(rec, structure.dofs).t
+        simulated = np.full_like(measured, np.nan)
+        diverged = True
+    fs = 1.0 / float(t[1] - t[0])
+    step = _stride(len(t), MAX_POINTS)
+    try:  # the axes must show every mode, also a weak one the energy criterion would cut
+        modes = structure.linear_modes([theta[p] for p in structure.free]).get("frequency_hz", [])
+    except Exception:  # noqa: BLE001 - a derived quantity must not stop the view
+        modes = []
+    fmin, fmax = frequency_band(measured, fs, include=modes)
+    out_dofs: dict[str, Any] = {}
+    f_axis = None
+    cwt_freqs = np.geomspace(max(fmax / 100, 2 * fs / len(t)), fmax, CWT_FREQS)
+    cstep = _stride(len(t), CWT_COLUMNS)
+    for k, d in enumerate(structure.dofs):
+        m, s = measured[:, k], simulated[:, k]
+        f, am = fourier_amplitude(m, fs)
+        sel = (f > 0) & (f <= fmax)
+        fstep = _stride(int(sel.sum()), MAX_POINTS)
+        f_axis = f[sel][::fstep]
+        entry: dict[str, Any] = {
+            "measured": _series(m[::step]), "simulated": _series(s[::step]),
+            "residual": _series((m - s)[::step]),
+            "rms_measured_mm": float(np.sqrt(np.mean(m ** 2))),
+            "rms_residual_mm": (float(np.sqrt(np.mean((m - s) ** 2))) if not diverged else None),
+            "spectrum": {"measured": _series(am[sel][::fstep])},
+        }
+        if not diverged:
+            _, asim = fourier_amplitude(s, fs)
+            entry["spectrum"]["simulated"] = _series(asim[sel][::fstep])
+            entry["nmse"] = float(np.mean((m - s) ** 2) / max(np.mean(m ** 2), 1e-300))
+        cw: dict[str, Any] = {}
+        for label, y in (("measured", m), ("simulated", s)):
+            if np.all(np.isfinite(y)) and np.ptp(y) > 0:
+                _, mag = cwt(y, fs, cwt_freqs)
+                cw[label] = np.round(mag[:, ::cstep], 4).tolist()
+        entry["cwt"] = cw
+        out_dofs[d] = entry
+    return {"t": _series(t[::step]), "fs_processed": fs, "decimation": step,
+            "diverged": diverged,
+            "spectrum_hz": _series(f_axis if f_axis is not None else []),
+            "band_hz": [float(fmin), float(fmax)],
+            "modes_hz": [float(f) for f in modes if np.isfinite(f)],
+            "cwt_hz": _series(cwt_freqs), "cwt_t": _series(t[::cstep]),
+            "units": {"t": "s", "displacement": "mm", "spectrum": "mm", "cwt": "normalised |W| (max 1)"},
+            "dofs": out_dofs}
+
+
+@dataclass
+class _Entry:
+    key: tuple[Any, ...]
+    rid: str
+    computed: float
+    body: dict[str, Any]
+
+
+class LatestRecordCache:
+    """One computed view per system, reused while the data version is unchanged.
+
+    The lock per system makes concurrent polls wait for the one computation under way
+    instead of starting their own."""
+
+    def __init__(self) -> None:
+        self._entries: dict[str, _Entry] = {}
+        self._locks: dict[str, threading.Lock] = {}
+        self._guard = threading.Lock()
+        self.computations = 0
+
+    def _lock(self, system: str) -> threading.Lock:
+        with self._guard:
+            return self._locks.setdefault(system, threading.Lock())
+
+    def get(self, system: str, key: tuple[Any, ...], rid: str,
+            compute: Any) -> tuple[dict[str, Any], bool]:
+        """The cached body for ``key`` (or for the same record, when younger than
+        MIN_RECOMPUTE_S), else ``compute()``; returns (body, was_cached)."""
+        with self._lock(system):
+            e = self._entries.get(system)
+            now = time.time()
+            if e is not None and (e.key == key or (e.rid == rid and now - e.computed < MIN_RECOMPUTE_S)):
+                return e.body, True
+            body = compute()
+            self.computations += 1
+            body["computed_at"] = now
+            body["computed_at_iso"] = iso_utc(now)
+            self._entries[system] = _Entry(key, rid, now, body)
+            return body, False
+
+    def forget(self, system: str) -> None:
+        with self._guard:
+            self._entries.pop(system, None)
+
+
+__all__ = ["compute_latest", "parameters_for_simulation", "LatestRecordCache"]
