@@ -12,6 +12,7 @@ from .processing import Processing, States
 from .recording import Recording
 from .simulate import OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force, simulate, stage_force
 from .simulate import grid as _grid
+from .simulate.grid import shifted_stage_force
 
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
@@ -140,20 +141,23 @@ class OutputErrorProblem:
 
     def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                          dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                         record: _Record | None = None) -> tuple[np.ndarray, np.ndarray]:
+                         record: _Record | None = None, force_shift: np.ndarray | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
         """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
-        ``record`` replaces the stored one (e.g. the same record with another force)."""
+        ``record`` replaces the stored one (e.g. the same record with another force);
+        ``force_shift`` (B,): delay of the force per set, in samples (``shifted_stage_force``)."""
         r = record or self.records[k]
         need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
-        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need)
+        st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need,
+                                 force_shift=force_shift)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
         return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
 
     def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                   record: _Record | None = None, need: str = "qva"
-                   ) -> tuple[States, np.ndarray]:
+                   record: _Record | None = None, need: str = "qva",
+                   force_shift: np.ndarray | None = None) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
         on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
         quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
@@ -161,9 +165,16 @@ class OutputErrorProblem:
         r = record or self.records[k]
         q0 = r.q0 if dq0 is None else r.q0 + dq0
         v0 = r.v0 if dv0 is None else r.v0 + dv0
-        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, r.force,
+        force, staged = r.force, r.staged(self.interp)
+        if force_shift is not None and force is not None:
+            B = np.atleast_2d(thetas).shape[0]
+            shifts = np.broadcast_to(np.asarray(force_shift, dtype=float).ravel(), (B,))
+            if force.ndim == 2:
+                force = np.broadcast_to(force, (B,) + force.shape)
+            staged = shifted_stage_force(r.force, r.substeps, self.interp, shifts)
+        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
-                       force_scale=force_scale, staged_force=r.staged(self.interp))
+                       force_scale=force_scale, staged_force=staged)
         q, v, a = sim.q, sim.v, sim.a
         ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
               & np.all(np.isfinite(a), axis=(1, 2)))
@@ -173,12 +184,14 @@ class OutputErrorProblem:
         return st, ok
 
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
-                  dq0: np.ndarray | None = None, dv0: np.ndarray | None = None) -> np.ndarray:
+                  dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
+                  force_shifts: np.ndarray | None = None) -> np.ndarray:
         """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
         squares is the mean NMSE over records and DOFs (each DOF of each record divided by
         its measured RMS, so records and DOFs of different amplitude weigh the same).
         ``force_scales`` (B, n_records): optional per-record force multipliers;
-        ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state."""
+        ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state;
+        ``force_shifts`` (B, n_records): optional delays of each record's force [samples]."""
         th = np.atleast_2d(np.asarray(thetas, dtype=float))
         B = th.shape[0]
         out = np.empty((B, self.n_residuals))
@@ -186,7 +199,9 @@ class OutputErrorProblem:
         for k, r in enumerate(self.records):
             fs = None if force_scales is None else force_scales[:, k]
             res, ok = self.record_residuals(th, k, fs, None if dq0 is None else dq0[:, k],
-                                            None if dv0 is None else dv0[:, k])
+                                            None if dv0 is None else dv0[:, k],
+                                            force_shift=None if force_shifts is None
+                                            else force_shifts[:, k])
             size = r.target.size
             out[:, col:col + size] = res
             out[~ok, col:col + size] = np.nan

@@ -77,6 +77,7 @@ class RefineResult:
     ci_inflation: float = 1.0
     names: list[str] = field(default_factory=list)
     force_scale: np.ndarray | None = None   # per record, when fit_force_scale
+    force_shift: np.ndarray | None = None   # per record [samples], when fit_force_shift
     stages: list[dict[str, Any]] = field(default_factory=list)
     std_gauss_newton: np.ndarray | None = None
     uncertainty: str = "bootstrap"
@@ -104,6 +105,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            interp: str | None = None, omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
+           fit_force_shift: bool = False,
            bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
@@ -139,6 +141,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     log-scaled from 1).  An impact's response depends so strongly on its impulse that 0.2 %
     force-sensor noise in the pulse (0.1 % impulse) moves a hardening record's late response
     by several %; without this the parameters absorb the error.
+    ``fit_force_shift``: also fit one sub-sample delay of the force per record, within
+    +-half a sample (a nuisance next to the multiplier).  Why: where a hammer pulse of a
+    few samples falls between them shifts the estimates deterministically (chain4 c1 -5 %
+    to +4 % with nothing else changed, docs/perf.md 6.3).
     ``fit_initial``: also fit offsets of each record's initial displacement and velocity
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
@@ -168,6 +174,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     n_rec = len(full.records)
     if fit_force_scale and not all(r.force is not None for r in full.records):
         raise ValueError("fit_force_scale needs a force column in every record")
+    if fit_force_shift and not all(r.force is not None for r in full.records):
+        raise ValueError("fit_force_shift needs a force column in every record")
+    if fit_force_shift and full.interp not in ("linear", "moments"):
+        raise ValueError(f"fit_force_shift needs interp 'linear' or 'moments', "
+                         f"got {full.interp!r}")
 
     # ---- variable map x <-> (theta, force scales)
     is_log = _log_mask(structure, free, theta0, log_scale)
@@ -186,11 +197,15 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         fit_initial = all(r.force is None and _state_derived(r.rec, structure.dofs)
                           for r in full.records)
     n_fs = n_rec if fit_force_scale else 0
+    n_sh = n_rec if fit_force_shift else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = len(free) + n_fs + n_ic
+    n_x = len(free) + n_fs + n_sh + n_ic
     if fit_force_scale:
         lower = np.concatenate([lower, np.full(n_rec, math.log(0.5))])
         upper = np.concatenate([upper, np.full(n_rec, math.log(2.0))])
+    if fit_force_shift:  # delay in samples
+        lower = np.concatenate([lower, np.full(n_rec, -0.5)])
+        upper = np.concatenate([upper, np.full(n_rec, 0.5)])
     ic_scale = np.zeros(0)
     if fit_initial:
         # offsets in units of each record's (processed) displacement / velocity RMS
@@ -204,8 +219,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         extra: dict[str, np.ndarray] = {}
         if fit_force_scale:
             extra["force_scales"] = np.exp(X[:, len(free):len(free) + n_fs])
+        if fit_force_shift:
+            extra["force_shifts"] = X[:, len(free) + n_fs:len(free) + n_fs + n_sh]
         if fit_initial:
-            ic = (X[:, len(free) + n_fs:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, len(free) + n_fs + n_sh:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
         return th, extra
 
@@ -239,6 +256,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     dth = np.where(is_log, theta, scale)
     if fit_force_scale:
         dth = np.concatenate([dth, fsc[0]])
+    if fit_force_shift:
+        dth = np.concatenate([dth, np.ones(n_sh)])
     if fit_initial:
         dth = np.concatenate([dth, ic_scale])
     # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
@@ -279,6 +298,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         time_s=time.perf_counter() - t_start,
                         ci_inflation=float(np.sqrt(np.mean(ratio ** 2))), names=free,
                         force_scale=None if fsc is None else fsc[0], stages=stages,
+                        force_shift=(None if "force_shifts" not in extra
+                                     else extra["force_shifts"][0]),
                         std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 

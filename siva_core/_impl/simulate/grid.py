@@ -63,3 +63,32 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
     raise ValueError(f"force interpolation must be 'linear', 'moments' or 'cubic', "
                      f"got {interp!r}")
 
+
+
+def shifted_stage_force(F: np.ndarray, m: int, interp: str, shifts: np.ndarray) -> np.ndarray:
+    """(B, rows, n): the force read as ``stage_force`` does, then delayed by ``shifts[b]``
+    samples for set b (the model sees f(t - shift dt)).  Why: the instant at which a
+    hammer pulse's few samples fall within it changes what its piecewise-linear reading
+    puts into the modes (docs/perf.md 6.3); a fitted sub-sample delay per record absorbs
+    the part of that error that acts as a timing error.  Only "linear" and "moments"
+    (piecewise linear, so the delayed reading is exact); before the record's start the
+    first sample's value holds.  ``F`` (T, n), or (B, T, n): one force per set."""
+    shifts = np.asarray(shifts, dtype=float).ravel()
+    if F.ndim == 3:
+        return np.concatenate([shifted_stage_force(f, m, interp, s[None])
+                               for f, s in zip(F, shifts)])
+    if interp == "moments":
+        G = F.copy()
+        G[1:-1] -= (F[2:] - 2.0 * F[1:-1] + F[:-2]) / 12.0
+    elif interp == "linear":
+        G = F
+    else:
+        raise ValueError(f"a shifted force needs interp 'linear' or 'moments', got {interp!r}")
+    T, n = G.shape
+    x = np.arange(2 * m * (T - 1) + 1) / (2.0 * m)
+    idx = np.arange(T, dtype=float)
+    out = np.empty((len(shifts), len(x), n))
+    for b, s in enumerate(shifts):
+        for j in range(n):
+            out[b, :, j] = np.interp(x - s, idx, G[:, j]) if np.any(G[:, j]) else 0.0
+    return out
