@@ -1,7 +1,7 @@
 """Deterministic shift of the refined estimate with the hit's sub-sample instant (issue 20).
 
 Noise-free records (no response, force or hum noise) of a coverage structure, hit with the
-exact half-sine pulse at ``impact_at_s = 0.1 + phase / fs``; refined from the truth with the
+exact half-sine pulse starting ``phase`` samples after the sample at 0.1 s; refined from the truth with the
 force multiplier fitted per record (as ``best``), once as before and once with the force's
 sub-sample delay fitted too (``refine(..., fit_force_shift=True)``).  With no noise, any
 error left is the model's reading of the force between its samples (docs/perf.md 6.3).
@@ -28,19 +28,21 @@ from siva_core import choose_processing, refine  # noqa: E402
 AMPLITUDE = {"chain3_end_1k": 50.0, "chain4_inner_disp": 125.0, "twodof_end_slow": 75.0}
 
 
-def run(case_name: str, phase: float, amplitude: float, shift: bool) -> dict:
+def run(case_name: str, phase: float, amplitude: float, mode: str) -> dict:
     base = CASES[case_name]
     case = replace(base, noise=0.0, force_noise=0.0, hum=0.0,
-                   impact_at_s=0.1 + phase / base.fs)
+                   impact_at_s=(round(0.1 * base.fs) + phase) / base.fs)
     st = case.structure()
     rec = case.record(amplitude, np.random.default_rng(0), name=f"{case_name}_{phase}")
     proc = choose_processing("auto", [rec], st.dofs)
     c0 = time.process_time()
-    res = refine(st, case.theta(), [rec], proc, fit_force_scale=True, fit_force_shift=shift,
+    res = refine(st, case.theta(), [rec], proc, fit_force_scale=True,
+                 fit_force_shift="delay" in mode, fit_force_spread="spread" in mode,
                  uncertainty="gauss-newton")
     return {"names": list(st.free), "err": res.theta / case.theta() - 1,
             "scale": float(np.ravel(res.force_scale)[0]),
             "shift": None if res.force_shift is None else float(np.ravel(res.force_shift)[0]),
+            "spread": None if res.force_spread is None else float(np.ravel(res.force_spread)[0]),
             "cpu_s": time.process_time() - c0}
 
 
@@ -49,20 +51,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--case", action="append")
     ap.add_argument("--phase", action="append", type=float)
     ap.add_argument("--amp", type=float)
-    ap.add_argument("--no-shift", action="store_true", help="only the fit without the delay")
+    ap.add_argument("--mode", action="append", choices=["before", "delay", "spread",
+                                                        "delay+spread"],
+                    help="nuisances fitted besides the multiplier (default: all four)")
     a = ap.parse_args(argv)
     cases = a.case or ["chain3_end_1k", "chain4_inner_disp"]
     phases = a.phase or [0.0, 0.5]
     for name in cases:
         amp = a.amp or AMPLITUDE.get(name, float(np.mean(CASES[name].amplitudes)))
         for phase in phases:
-            for shift in ((False,) if a.no_shift else (False, True)):
-                r = run(name, phase, amp, shift)
+            for mode in a.mode or ["before", "delay", "spread", "delay+spread"]:
+                r = run(name, phase, amp, mode)
                 errs = "  ".join(f"{n} {100 * e:+.2f}%" for n, e in zip(r["names"], r["err"]))
                 sh = "" if r["shift"] is None else f" delay {r['shift']:+.3f} smp"
-                print(f"{name} {amp:g} N phase {phase:.2f} {'shift fitted' if shift else 'before      '}"
-                      f" | {errs} | scale {r['scale']:.4f}{sh} | {r['cpu_s']:.1f} cpu s",
-                      flush=True)
+                sp = "" if r["spread"] is None else f" spread {r['spread']:+.3f} smp^2"
+                print(f"{name} {amp:g} N phase {phase:.2f} {mode:12s} | {errs} | scale "
+                      f"{r['scale']:.4f}{sh}{sp} | {r['cpu_s']:.1f} cpu s", flush=True)
     return 0
 
 

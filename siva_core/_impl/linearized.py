@@ -96,9 +96,12 @@ class Linearization:
 
 def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
               processing: Processing, *, fit_force_scale: bool | str = "auto",
-              n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
+              fit_force_spread: bool | str = "auto", n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
               substeps: Sequence[int] | None = None) -> Linearization:
-    """Linearise the output error of ``records`` at ``theta`` (see the module doc)."""
+    """Linearise the output error of ``records`` at ``theta`` (see the module doc).
+    ``fit_force_spread``: also profile out a change of each record's force spread
+    (``adjusted_stage_force``; "auto": with the force scale, for a piecewise-linear reading),
+    the pulse's width between its few samples (docs/perf.md 6.3)."""
     from .output_error import OutputErrorProblem, _state_derived
     from .refine import _log_mask
     from .replicates import noise_replicates
@@ -120,9 +123,12 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
                       for r in prob.records)
     is_log = _log_mask(structure, free, theta, "auto")
     scale = np.where(theta != 0, np.abs(theta), 1.0)
+    if fit_force_spread == "auto":
+        fit_force_spread = bool(fit_force_scale) and prob.interp in ("linear", "moments")
     n_fs = n_rec if fit_force_scale else 0
+    n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = n + n_fs + n_ic
+    n_x = n + n_fs + n_sp + n_ic
     ic_scale = (np.maximum(np.concatenate([r.state_rms for r in prob.records]), 1e-300)
                 if fit_initial else np.zeros(0))
 
@@ -131,8 +137,10 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         extra: dict[str, np.ndarray] = {}
         if n_fs:
             extra["force_scales"] = np.exp(X[:, n:n + n_fs])
+        if n_sp:
+            extra["force_spreads"] = X[:, n + n_fs:n + n_fs + n_sp]
         if n_ic:
-            ic = (X[:, n + n_fs:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, n + n_fs + n_sp:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
         return prob.residuals(th, **extra)
 
@@ -172,8 +180,10 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         extra0: dict[str, np.ndarray] = {}
         if n_fs:
             extra0["force_scales"] = np.exp(base[None, n:n + n_fs])
+        if n_sp:
+            extra0["force_spreads"] = base[None, n + n_fs:n + n_fs + n_sp]
         if n_ic:
-            ic = (base[None, n + n_fs:] * ic_scale).reshape(1, n_rec, 2, n_dof)
+            ic = (base[None, n + n_fs + n_sp:] * ic_scale).reshape(1, n_rec, 2, n_dof)
             extra0["dq0"], extra0["dv0"] = ic[:, :, 0], ic[:, :, 1]
         # the stationary part from the *profiled* residuals: the anchor's raw residuals
         # still hold the impulse error that the force scale absorbs

@@ -12,7 +12,7 @@ from .processing import Processing, States
 from .recording import Recording
 from .simulate import OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force, simulate, stage_force
 from .simulate import grid as _grid
-from .simulate.grid import shifted_stage_force
+from .simulate.grid import adjusted_stage_force
 
 
 _QTY_ATTR = {"disp": "q", "vel": "v", "acc": "a"}
@@ -141,15 +141,17 @@ class OutputErrorProblem:
 
     def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                          dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                         record: _Record | None = None, force_shift: np.ndarray | None = None
+                         record: _Record | None = None, force_shift: np.ndarray | None = None,
+                         force_spread: np.ndarray | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
         """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
         ``record`` replaces the stored one (e.g. the same record with another force);
-        ``force_shift`` (B,): delay of the force per set, in samples (``shifted_stage_force``)."""
+        ``force_shift`` (B,): delay of the force per set [samples]; ``force_spread`` (B,):
+        change of its spread [samples^2] (``adjusted_stage_force``)."""
         r = record or self.records[k]
         need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
         st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need,
-                                 force_shift=force_shift)
+                                 force_shift=force_shift, force_spread=force_spread)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
         return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
@@ -157,7 +159,8 @@ class OutputErrorProblem:
     def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
                    record: _Record | None = None, need: str = "qva",
-                   force_shift: np.ndarray | None = None) -> tuple[States, np.ndarray]:
+                   force_shift: np.ndarray | None = None,
+                   force_spread: np.ndarray | None = None) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
         on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
         quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
@@ -166,12 +169,12 @@ class OutputErrorProblem:
         q0 = r.q0 if dq0 is None else r.q0 + dq0
         v0 = r.v0 if dv0 is None else r.v0 + dv0
         force, staged = r.force, r.staged(self.interp)
-        if force_shift is not None and force is not None:
+        if (force_shift is not None or force_spread is not None) and force is not None:
             B = np.atleast_2d(thetas).shape[0]
-            shifts = np.broadcast_to(np.asarray(force_shift, dtype=float).ravel(), (B,))
             if force.ndim == 2:
                 force = np.broadcast_to(force, (B,) + force.shape)
-            staged = shifted_stage_force(r.force, r.substeps, self.interp, shifts)
+            staged = adjusted_stage_force(force, r.substeps, self.interp, force_shift,
+                                          force_spread)
         sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
                        force_scale=force_scale, staged_force=staged)
@@ -185,13 +188,15 @@ class OutputErrorProblem:
 
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
-                  force_shifts: np.ndarray | None = None) -> np.ndarray:
+                  force_shifts: np.ndarray | None = None,
+                  force_spreads: np.ndarray | None = None) -> np.ndarray:
         """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
         squares is the mean NMSE over records and DOFs (each DOF of each record divided by
         its measured RMS, so records and DOFs of different amplitude weigh the same).
         ``force_scales`` (B, n_records): optional per-record force multipliers;
         ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state;
-        ``force_shifts`` (B, n_records): optional delays of each record's force [samples]."""
+        ``force_shifts``, ``force_spreads`` (B, n_records): optional delay [samples] and
+        spread change [samples^2] of each record's force (``adjusted_stage_force``)."""
         th = np.atleast_2d(np.asarray(thetas, dtype=float))
         B = th.shape[0]
         out = np.empty((B, self.n_residuals))
@@ -201,7 +206,9 @@ class OutputErrorProblem:
             res, ok = self.record_residuals(th, k, fs, None if dq0 is None else dq0[:, k],
                                             None if dv0 is None else dv0[:, k],
                                             force_shift=None if force_shifts is None
-                                            else force_shifts[:, k])
+                                            else force_shifts[:, k],
+                                            force_spread=None if force_spreads is None
+                                            else force_spreads[:, k])
             size = r.target.size
             out[:, col:col + size] = res
             out[~ok, col:col + size] = np.nan
@@ -280,7 +287,7 @@ def output_error(structure: Any, thetas: Any, records: Recording | Sequence[Reco
 def force_profiled_output_error(structure: Any, thetas: Any,
                                 records: Recording | Sequence[Recording],
                                 processing: Processing | None = None, *, iterations: int = 4,
-                                **kw: Any) -> np.ndarray:
+                                fit_spread: bool = False, **kw: Any) -> np.ndarray:
     """(B,) ``output_error`` with one force multiplier per record fitted for each parameter
     set: the cost the refinement minimises when it fits force scales (``refine(...,
     fit_force_scale=True)``), so a refined estimate and its start are compared on the same
@@ -289,14 +296,16 @@ def force_profiled_output_error(structure: Any, thetas: Any,
     the measured force taken as exact, a wrong basin that absorbs that error (dampings off
     by 10-30 %) can simulate the training record better than the right one, and the right
     refinement was discarded (issue 20: 7 of 20 runs of a chain hit on its end mass).
+    ``fit_spread``: the force's spread is profiled too (``refine(...,
+    fit_force_spread=True)``), within +-0.5 samples^2.
 
-    Per record, ``iterations`` Gauss-Newton steps on the multiplier (central-difference
-    slope; one batched simulation per step), kept within [0.5, 2]; each record contributes
-    the smallest cost met, multiplier 1 included (so never more than ``output_error``).
-    Records without force keep multiplier 1."""
+    Per record, ``iterations`` Gauss-Newton steps on the multiplier (and spread)
+    (central-difference slopes; one batched simulation per step), the multiplier kept within
+    [0.5, 2]; each record contributes the smallest cost met, multiplier 1 (spread 0)
+    included (so never more than ``output_error``).  Records without force keep multiplier 1."""
     th = np.atleast_2d(np.asarray(thetas, dtype=float))
     prob = OutputErrorProblem.build(structure, records, processing, theta_ref=th, **kw)
-    B, h = th.shape[0], 1e-3
+    B, h, hs = th.shape[0], 1e-3, 1e-3
     total = np.zeros(B)
     for k, r in enumerate(prob.records):
         if r.force is None:
@@ -304,21 +313,38 @@ def force_profiled_output_error(structure: Any, thetas: Any,
             total += np.where(ok, np.sum(res ** 2, axis=1), np.inf)
             continue
         s = np.ones(B)
+        w = np.zeros(B)
         best = np.full(B, np.inf)
+        n_p = 5 if fit_spread else 3
         for it in range(iterations + 1):
-            scales = np.concatenate([s, s * (1 + h), s * (1 - h)])
-            res, ok = prob.record_residuals(np.concatenate([th, th, th]), k, scales)
-            r0, ru, rd = res[:B], res[B:2 * B], res[2 * B:]
-            c0 = np.where(ok[:B], np.sum(r0 ** 2, axis=1), np.inf)
+            scales = np.concatenate([s, s * (1 + h), s * (1 - h)] + ([s, s] if fit_spread else []))
+            spreads = (np.concatenate([w, w, w, w + hs, w - hs]) if fit_spread else None)
+            res, ok = prob.record_residuals(np.concatenate([th] * n_p), k, scales,
+                                            force_spread=spreads)
+            parts = [res[i * B:(i + 1) * B] for i in range(n_p)]
+            oks = [ok[i * B:(i + 1) * B] for i in range(n_p)]
+            r0 = parts[0]
+            c0 = np.where(oks[0], np.sum(r0 ** 2, axis=1), np.inf)
             best = np.minimum(best, c0)
             if it == iterations:
                 break
-            g = (ru - rd) / (2 * h * s[:, None])
-            gg = np.sum(g * g, axis=1)
-            with np.errstate(all="ignore"):
-                step = np.where(gg > 0, np.sum(r0 * g, axis=1) / gg, 0.0)
-            fine = ok[:B] & ok[B:2 * B] & ok[2 * B:] & np.isfinite(step)
-            s = np.where(fine, np.clip(s - step, 0.5, 2.0), s)
+            fine = np.logical_and.reduce(oks)
+            cols = [(parts[1] - parts[2]) / (2 * h * s[:, None])]
+            if fit_spread:
+                cols.append((parts[3] - parts[4]) / (2 * hs))
+            J = np.stack(cols, axis=-1)                          # (B, R, p)
+            JtJ = np.einsum("brp,brq->bpq", J, J)
+            Jtr = np.einsum("brp,br->bp", J, r0)
+            step = np.zeros((B, J.shape[-1]))
+            for b in np.flatnonzero(fine):
+                try:
+                    step[b] = np.linalg.lstsq(JtJ[b], Jtr[b], rcond=1e-12)[0]
+                except np.linalg.LinAlgError:
+                    fine[b] = False
+            fine &= np.all(np.isfinite(step), axis=1)
+            s = np.where(fine, np.clip(s - step[:, 0], 0.5, 2.0), s)
+            if fit_spread:
+                w = np.where(fine, np.clip(w - step[:, 1], -0.5, 0.5), w)
         total += best
     total[~np.isfinite(total)] = np.inf
     return total

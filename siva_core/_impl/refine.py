@@ -78,6 +78,7 @@ class RefineResult:
     names: list[str] = field(default_factory=list)
     force_scale: np.ndarray | None = None   # per record, when fit_force_scale
     force_shift: np.ndarray | None = None   # per record [samples], when fit_force_shift
+    force_spread: np.ndarray | None = None  # per record [samples^2], when fit_force_spread
     stages: list[dict[str, Any]] = field(default_factory=list)
     std_gauss_newton: np.ndarray | None = None
     uncertainty: str = "bootstrap"
@@ -105,7 +106,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            interp: str | None = None, omega_h: float = OMEGA_H,
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
-           fit_force_shift: bool = False,
+           fit_force_shift: bool = False, fit_force_spread: bool = False,
            bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
@@ -145,6 +146,9 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     +-half a sample (a nuisance next to the multiplier).  Why: where a hammer pulse of a
     few samples falls between them shifts the estimates deterministically (chain4 c1 -5 %
     to +4 % with nothing else changed, docs/perf.md 6.3).
+    ``fit_force_spread``: also fit a change of the force's spread (second moment) per
+    record, within +-0.5 dt^2 (``simulate.grid.adjusted_stage_force``): the pulse's width
+    between its samples, which its few samples leave undetermined.
     ``fit_initial``: also fit offsets of each record's initial displacement and velocity
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
@@ -174,11 +178,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     n_rec = len(full.records)
     if fit_force_scale and not all(r.force is not None for r in full.records):
         raise ValueError("fit_force_scale needs a force column in every record")
-    if fit_force_shift and not all(r.force is not None for r in full.records):
-        raise ValueError("fit_force_shift needs a force column in every record")
-    if fit_force_shift and full.interp not in ("linear", "moments"):
-        raise ValueError(f"fit_force_shift needs interp 'linear' or 'moments', "
-                         f"got {full.interp!r}")
+    for flag, what in ((fit_force_shift, "fit_force_shift"), (fit_force_spread, "fit_force_spread")):
+        if flag and not all(r.force is not None for r in full.records):
+            raise ValueError(f"{what} needs a force column in every record")
+        if flag and full.interp not in ("linear", "moments"):
+            raise ValueError(f"{what} needs interp 'linear' or 'moments', got {full.interp!r}")
 
     # ---- variable map x <-> (theta, force scales)
     is_log = _log_mask(structure, free, theta0, log_scale)
@@ -198,12 +202,16 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                           for r in full.records)
     n_fs = n_rec if fit_force_scale else 0
     n_sh = n_rec if fit_force_shift else 0
+    n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = len(free) + n_fs + n_sh + n_ic
+    n_x = len(free) + n_fs + n_sh + n_sp + n_ic
     if fit_force_scale:
         lower = np.concatenate([lower, np.full(n_rec, math.log(0.5))])
         upper = np.concatenate([upper, np.full(n_rec, math.log(2.0))])
     if fit_force_shift:  # delay in samples
+        lower = np.concatenate([lower, np.full(n_rec, -0.5)])
+        upper = np.concatenate([upper, np.full(n_rec, 0.5)])
+    if fit_force_spread:  # change of the spread in samples^2
         lower = np.concatenate([lower, np.full(n_rec, -0.5)])
         upper = np.concatenate([upper, np.full(n_rec, 0.5)])
     ic_scale = np.zeros(0)
@@ -221,8 +229,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
             extra["force_scales"] = np.exp(X[:, len(free):len(free) + n_fs])
         if fit_force_shift:
             extra["force_shifts"] = X[:, len(free) + n_fs:len(free) + n_fs + n_sh]
+        if fit_force_spread:
+            i0 = len(free) + n_fs + n_sh
+            extra["force_spreads"] = X[:, i0:i0 + n_sp]
         if fit_initial:
-            ic = (X[:, len(free) + n_fs + n_sh:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, len(free) + n_fs + n_sh + n_sp:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
         return th, extra
 
@@ -258,6 +269,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         dth = np.concatenate([dth, fsc[0]])
     if fit_force_shift:
         dth = np.concatenate([dth, np.ones(n_sh)])
+    if fit_force_spread:
+        dth = np.concatenate([dth, np.ones(n_sp)])
     if fit_initial:
         dth = np.concatenate([dth, ic_scale])
     # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
@@ -300,6 +313,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         force_scale=None if fsc is None else fsc[0], stages=stages,
                         force_shift=(None if "force_shifts" not in extra
                                      else extra["force_shifts"][0]),
+                        force_spread=(None if "force_spreads" not in extra
+                                      else extra["force_spreads"][0]),
                         std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 

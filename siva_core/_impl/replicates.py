@@ -48,7 +48,9 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
             dq = None if "dq0" not in extra else extra["dq0"][:, k]
             dv = None if "dv0" not in extra else extra["dv0"][:, k]
             sh = None if "force_shifts" not in extra else extra["force_shifts"][:, k]
-            base, ok = prob.record_residuals(theta, k, fs, dq, dv, force_shift=sh)
+            sp = None if "force_spreads" not in extra else extra["force_spreads"][:, k]
+            base, ok = prob.record_residuals(theta, k, fs, dq, dv, force_shift=sh,
+                                             force_spread=sp)
             noisy = np.repeat(rec.force[None], n_rep, axis=0)
             for b in range(n_rep):
                 noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
@@ -61,7 +63,8 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                 alt = dataclasses.replace(rec, force=chunk, _staged=None)
                 rb, okb = prob.record_residuals(rep(np.atleast_2d(theta), c), k, rep(fs, c),
                                                 rep(dq, c), rep(dv, c), record=alt,
-                                                force_shift=rep(sh, c))
+                                                force_shift=rep(sh, c),
+                                                force_spread=rep(sp, c))
                 if ok[0]:
                     good = np.flatnonzero(okb)
                     E[b0 + good, col:col + size] += rb[good] - base[0]
@@ -70,7 +73,8 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                 # varies by FORCE_SHAPE_SPREAD x (straight lines - the moment-matched
                 # reading), the scale of what sampling a short pulse leaves undetermined
                 lin = dataclasses.replace(prob, interp="linear")
-                rl, okl = lin.record_residuals(theta, k, fs, dq, dv, force_shift=sh)
+                rl, okl = lin.record_residuals(theta, k, fs, dq, dv, force_shift=sh,
+                                               force_spread=sp)
                 if okl[0]:
                     xi = shape_rng.standard_normal(n_rep)
                     E[:, col:col + size] += np.outer(xi, FORCE_SHAPE_SPREAD * (rl - base)[0])

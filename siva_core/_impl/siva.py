@@ -174,6 +174,7 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
     """
     from .refine import displacement_mse, force_profiled_output_error, output_error
     from .refine import refine as _refine
+    from .simulate import grid as _grid
 
     st = structure
     names = st.free
@@ -198,12 +199,18 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
         forced = all(r.has_force(st.dofs) for r in train)
         fit_scale = forced and not gains
+        fit_spread = fit_scale and _grid.MEASURED_FORCE_INTERP in ("linear", "moments")
+        # The pulse's spread too: where its few samples fall within it changes its width
+        # between them, which shifts dampings and stiffnesses (docs/perf.md 6.3).
         res = _refine(st, theta_III, train, processing, fit_force_scale=fit_scale,
-                      bounds=(lo, hi))
+                      fit_force_spread=fit_spread, bounds=(lo, hi))
         # judged by the cost the refinement minimised: with fitted force scales, start and
         # result each with their own (``force_profiled_output_error``)
-        cost = force_profiled_output_error if fit_scale else output_error
-        c_ref = cost(st, np.stack([theta_III, res.theta]), train, processing)
+        if fit_scale:
+            c_ref = force_profiled_output_error(st, np.stack([theta_III, res.theta]), train,
+                                                processing, fit_spread=fit_spread)
+        else:
+            c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
         if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
             # Gauss-Newton std, inflated for the correlation of filtered residuals
             best, best_std = res.theta, res.std  # block-bootstrap (sandwich) std

@@ -65,30 +65,40 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
 
 
 
-def shifted_stage_force(F: np.ndarray, m: int, interp: str, shifts: np.ndarray) -> np.ndarray:
-    """(B, rows, n): the force read as ``stage_force`` does, then delayed by ``shifts[b]``
-    samples for set b (the model sees f(t - shift dt)).  Why: the instant at which a
-    hammer pulse's few samples fall within it changes what its piecewise-linear reading
-    puts into the modes (docs/perf.md 6.3); a fitted sub-sample delay per record absorbs
-    the part of that error that acts as a timing error.  Only "linear" and "moments"
-    (piecewise linear, so the delayed reading is exact); before the record's start the
-    first sample's value holds.  ``F`` (T, n), or (B, T, n): one force per set."""
-    shifts = np.asarray(shifts, dtype=float).ravel()
+
+def adjusted_stage_force(F: np.ndarray, m: int, interp: str, shifts: np.ndarray | None = None,
+                         spreads: np.ndarray | None = None) -> np.ndarray:
+    """(B, rows, n): the force read as ``stage_force`` does, delayed by ``shifts[b]``
+    samples (the model sees f(t - shift dt)) and with its spread (second moment about the
+    centroid) changed by ``spreads[b]`` dt^2, for each set b.
+
+    Why: where a hammer pulse's few samples fall within it changes what its reading puts
+    into the modes -- impulse, timing and spread (docs/perf.md 6.3); the impulse is the
+    fitted force multiplier, these are the next two moments as per-record nuisances.  The
+    spread is the prefilter of the "moments" reading, G = F - w D2 F, with w = 1/12 - spread/2
+    (straight lines through G have the samples' own spread plus dt^2 (1/6 - 2 w); "linear"
+    starts from w = 0): impulse and centroid stay, and the force stays linear in each
+    nuisance.  Piecewise linear, so the delayed reading is exact; before the record's start
+    the first sample's value holds.  ``F`` (T, n), or (B, T, n): one force per set."""
+    if interp not in ("linear", "moments"):
+        raise ValueError(f"an adjusted force needs interp 'linear' or 'moments', got {interp!r}")
+    w0 = 1.0 / 12.0 if interp == "moments" else 0.0
+    B = max(len(np.ravel(x)) for x in (shifts, spreads, [0.0]) if x is not None)
     if F.ndim == 3:
-        return np.concatenate([shifted_stage_force(f, m, interp, s[None])
-                               for f, s in zip(F, shifts)])
-    if interp == "moments":
-        G = F.copy()
-        G[1:-1] -= (F[2:] - 2.0 * F[1:-1] + F[:-2]) / 12.0
-    elif interp == "linear":
-        G = F
-    else:
-        raise ValueError(f"a shifted force needs interp 'linear' or 'moments', got {interp!r}")
-    T, n = G.shape
+        B = len(F)
+    sh = np.broadcast_to(np.zeros(1) if shifts is None else np.asarray(shifts, float).ravel(), (B,))
+    sp = np.broadcast_to(np.zeros(1) if spreads is None else np.asarray(spreads, float).ravel(),
+                         (B,))
+    Fs = np.broadcast_to(F, (B,) + F.shape[-2:])
+    T, n = Fs.shape[1:]
     x = np.arange(2 * m * (T - 1) + 1) / (2.0 * m)
     idx = np.arange(T, dtype=float)
-    out = np.empty((len(shifts), len(x), n))
-    for b, s in enumerate(shifts):
+    out = np.zeros((B, len(x), n))
+    for b in range(B):
+        f = Fs[b]
+        G = f.copy()
+        G[1:-1] -= (w0 - 0.5 * sp[b]) * (f[2:] - 2.0 * f[1:-1] + f[:-2])
         for j in range(n):
-            out[b, :, j] = np.interp(x - s, idx, G[:, j]) if np.any(G[:, j]) else 0.0
+            if np.any(G[:, j]):
+                out[b, :, j] = np.interp(x - sh[b], idx, G[:, j])
     return out
