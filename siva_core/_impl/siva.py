@@ -539,7 +539,8 @@ class Siva:
         # force's error
         scaled = rec.refine_result is not None and rec.refine_result.force_scale is not None
         judge = force_profiled_output_error if scaled else output_error
-        cost = judge(self.structure, np.stack([best, rec.theta]), recs, proc)
+        kw = ({"fit_spread": rec.refine_result.force_spread is not None} if scaled else {})
+        cost = judge(self.structure, np.stack([best, rec.theta]), recs, proc, **kw)
         return rec if np.isfinite(cost[1]) and cost[1] < 0.999 * cost[0] else None
 
     def _baselines(self, timing: dict[str, float]) -> dict[str, dict[str, float]]:
