@@ -100,9 +100,10 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
               substeps: Sequence[int] | None = None) -> Linearization:
     """Linearise the output error of ``records`` at ``theta`` (see the module doc).
     ``fit_force_spread``: also profile out a change of each record's force spread
-    (``adjusted_stage_force``; "auto": with the force scale, for a piecewise-linear reading),
+    (``adjusted_stage_force``; "auto": with the force scale, when
+    ``force_spread_identifiable``),
     the pulse's width between its few samples (docs/perf.md 6.3)."""
-    from .output_error import OutputErrorProblem, _state_derived
+    from .output_error import OutputErrorProblem, _state_derived, force_spread_identifiable
     from .refine import _log_mask
     from .replicates import noise_replicates
 
@@ -124,7 +125,8 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     is_log = _log_mask(structure, free, theta, "auto")
     scale = np.where(theta != 0, np.abs(theta), 1.0)
     if fit_force_spread == "auto":
-        fit_force_spread = bool(fit_force_scale) and prob.interp in ("linear", "moments")
+        fit_force_spread = bool(fit_force_scale) and force_spread_identifiable(
+            structure, theta, recs, prob.interp)
     n_fs = n_rec if fit_force_scale else 0
     n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
