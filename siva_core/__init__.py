@@ -23,6 +23,7 @@ Processing
     deciding whether a force is a hammer pulse).
 Simulation
     :func:`simulate` -> :class:`Simulation`, :func:`auto_substeps`, :func:`stage_force`,
+    :func:`adjusted_stage_force`,
     :func:`warmup`; :func:`initial_state_and_force` and :func:`gate_force` (what drives
     the simulation of a measured record).
 Identification
@@ -70,7 +71,7 @@ _export("mcap_recording", "read_mcap_recording", "write_mcap_recording", "mcap_b
 _export("processing", "Processing", "States", "simulated_recording", "central_difference")
 _export("impulse", "detect_impulse", "Impulse")
 _export("simulate", "simulate", "Simulation", "auto_substeps", "stage_force", "warmup",
-        "set_measured_force_interp")
+        "set_measured_force_interp", "adjusted_stage_force")
 _export("excitation", "initial_state_and_force", "gate_force")
 _export("inputs", "parse_pairs")
 _export("preflight", "preflight", "check_recording", "check_rates", "resample_to",
@@ -131,8 +132,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                force_profiled_output_error, output_error, refine)
     from ._impl.report import write_report
-    from ._impl.simulate import (Simulation, auto_substeps, set_measured_force_interp, simulate,
-                                 stage_force, warmup)
+    from ._impl.simulate import (Simulation, adjusted_stage_force, auto_substeps,
+                                 set_measured_force_interp, simulate, stage_force, warmup)
     from ._impl.siva import Identification, Siva, choose_processing, recommend_best
     from ._impl.spectra import cwt, dominant_frequency, fourier_amplitude, frequency_band
     from ._impl.structure import SpecError, Structure

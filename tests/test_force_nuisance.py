@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from siva_core import Processing, Recording, Structure, refine, simulate
-from siva_core._impl.simulate.grid import adjusted_stage_force, stage_force
+from siva_core import (Processing, Recording, Structure, adjusted_stage_force, refine, simulate,
+                       stage_force)
 
 
 def _moments(y: np.ndarray, m: int) -> tuple[float, float, float]:

@@ -32,7 +32,7 @@ from __future__ import annotations
 from typing import Any
 
 from .backends import choose_backend
-from .grid import MEASURED_FORCE_INTERP, set_measured_force_interp, stage_force
+from .grid import MEASURED_FORCE_INTERP, adjusted_stage_force, set_measured_force_interp, stage_force
 from .numba_kernel import compiled_kernel
 from .solver import Simulation, simulate, warmup
 from .substeps import OMEGA_H, auto_substeps
@@ -53,5 +53,5 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = ["Simulation", "simulate", "auto_substeps", "initial_state_and_force", "gate_force",
-           "compiled_kernel", "warmup", "stage_force", "MEASURED_FORCE_INTERP", "set_measured_force_interp", "choose_backend",
+           "compiled_kernel", "warmup", "stage_force", "adjusted_stage_force", "MEASURED_FORCE_INTERP", "set_measured_force_interp", "choose_backend",
            "OMEGA_H"]
