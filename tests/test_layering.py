@@ -337,10 +337,14 @@ DICT_SEAMS_ALLOWED: dict[str, str] = {
         _JSON + "its part of the checkpoint file",
     "service.monitoring.monitor.RecordMonitor.state_dict":
         _JSON + "its part of the checkpoint file",
-    "service.fleet.executor.TrainerHandle.snapshot": _SNAPSHOT_DEBT,
     "service.fleet.executor.TrainerHandle.drift_report": _SNAPSHOT_DEBT,
     "service.fleet.executor.TrainerHandle.reset_drift": _SNAPSHOT_DEBT,
-    "service.trainer.estimate.estimate_view": _SNAPSHOT_DEBT,
+    "service.trainer.published.Snapshot.to_json":
+        _JSON + "the GET .../estimate body and the MCAP snapshot event, built at the edge "
+        "from the frozen Snapshot",
+    "service.trainer.published.estimate_body":
+        _JSON + "orders a JSON body's keys (the estimate body; siva replay's report, built "
+        "from a logged snapshot event)",
     "service.monitoring.monitor.RecordMonitor.headline": _SNAPSHOT_DEBT,
     "service.monitoring.monitor.RecordMonitor.process": _SNAPSHOT_DEBT,
     "service.monitoring.monitor.RecordMonitor.report": _SNAPSHOT_DEBT,

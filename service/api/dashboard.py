@@ -69,7 +69,8 @@ async def latest_record(name: str, request: Request, w: SystemDep,
         return {"system": name, "available": False, "reason": "no recording yet"}
     meta = max(metas, key=lambda m: m.index)
     snap = w.snapshot()
-    chosen = parameters_for_simulation(snap, w.structure.free)
+    chosen = parameters_for_simulation(snap.best, snap.parameters, snap.estimate_source,
+                                       w.structure.free)
     record = {"id": meta.id, "role": meta.role, "filename": meta.filename,
               "received_at": meta.received_at, "received_at_iso": iso_utc(meta.received_at)}
     if chosen is None:
@@ -97,7 +98,7 @@ async def latest_record(name: str, request: Request, w: SystemDep,
         return {"system": name, "available": True, "record": record,
                 "parameters": theta, "parameters_source": source,
                 "parameter_units": w.structure.parameter_units(),
-                "epoch": snap.get("epoch"), **series}
+                "epoch": snap.epoch, **series}
 
     try:
         body, cached = await run_in_threadpool(cache.get, name, key, meta.id, compute)

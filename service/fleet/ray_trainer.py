@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from siva_core import Structure
 
 from ..errors import Unavailable
-from ..trainer import base_snapshot
+from ..trainer import Snapshot, base_snapshot
 
 if TYPE_CHECKING:
     from .ray_executor import RayExecutor
@@ -39,7 +39,7 @@ class RayTrainer:
         self.structure = structure
         self.host_id = host_id
         self.generation: int | None = None
-        self._snapshot: dict[str, Any] = base_snapshot(name, "starting")
+        self._snapshot: Snapshot = base_snapshot(name, "starting")
         self._drift: dict[str, Any] = {"alarms": [], "alarm_history": [], "records": [],
                                        "history": [], "headline": {}}
         self._status: dict[str, Any] = {}
@@ -109,7 +109,7 @@ class RayTrainer:
         return report
 
     # ------------------------------------------------------------------ reads
-    def snapshot(self) -> dict[str, Any]:
+    def snapshot(self) -> Snapshot:
         return self._snapshot
 
     def drift_report(self) -> dict[str, Any]:

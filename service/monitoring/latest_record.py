@@ -35,22 +35,24 @@ CWT_COLUMNS = 240
 MIN_RECOMPUTE_S = 20.0
 
 
-def parameters_for_simulation(snapshot: Mapping[str, Any], free: Sequence[str]
+def parameters_for_simulation(best: Mapping[str, Any] | None,
+                              parameters: Mapping[str, Any] | None,
+                              estimate_source: str | None, free: Sequence[str]
                               ) -> tuple[dict[str, float], str] | None:
     """The values to simulate with and where they come from: ``best`` when the refiner
-    has one (what the service recommends), else the headline ``parameters`` means.
-    Defensive about the payload's shape: it is being reworked (``value`` or ``mean``)."""
-    best = snapshot.get("best") or {}
+    has one (what the service recommends), else the headline ``parameters`` means (a
+    snapshot's keys).  Defensive about the payload's shape (``value`` or ``mean``)."""
+    best = best or {}
     bp = best.get("parameters") if isinstance(best, Mapping) else None
     if isinstance(bp, Mapping) and all(isinstance(bp.get(p), Mapping) for p in free):
         vals = {p: bp[p].get("value", bp[p].get("mean")) for p in free}
         if all(isinstance(v, (int, float)) for v in vals.values()):
             return {p: float(v) for p, v in vals.items()}, "best"
-    params = snapshot.get("parameters") or {}
+    params = parameters or {}
     if all(isinstance(params.get(p), Mapping) for p in free):
         vals = {p: params[p].get("mean", params[p].get("value")) for p in free}
         if all(isinstance(v, (int, float)) for v in vals.values()):
-            source = snapshot.get("estimate_source") or "parameters"
+            source = estimate_source or "parameters"
             return {p: float(v) for p, v in vals.items()}, str(source)
     return None
 

@@ -12,7 +12,6 @@ import numpy as np
 from siva_core import Processing
 
 from .anchoring import anchor_record, apply_anchor
-from .estimate import estimate_view
 from .readout import candidates, output_error_wanted, read_ensemble
 from .types import Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict, best_from
 
@@ -144,6 +143,7 @@ class PhaseSteps:
             self._refresh_snapshot()
         if self.events is not None:
             try:
-                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+                self.events.log_snapshot(self.name,
+                                        self._snapshot.to_json(self._counts()))
             except Exception:  # noqa: BLE001
                 log.exception("%s: event log failed", self.name)

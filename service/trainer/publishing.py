@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UnknownSystem
-from .estimate import estimate_view
+from .published import Snapshot
 from .readout import EnsembleReadout, read_ensemble
 from .snapshot import SnapshotParts, build_snapshot, history_entry
 
@@ -20,8 +20,8 @@ log = logging.getLogger("siva.service.worker")
 class Publishing:
     """SystemWorker's snapshots and drift report (mixin: the state is the worker's)."""
 
-    def snapshot(self) -> dict[str, Any]:
-        """The latest published snapshot (immutable by convention: never mutated)."""
+    def snapshot(self) -> Snapshot:
+        """The latest published snapshot (frozen: read without a lock)."""
         return self._snapshot
 
     def drift_report(self) -> dict[str, Any]:
@@ -36,12 +36,13 @@ class Publishing:
 
     def _report(self) -> dict[str, Any]:
         view = self.monitoring.view
-        snap = getattr(self, "_snapshot", {}) or {}
+        snap: Snapshot | None = getattr(self, "_snapshot", None)
         return {**view["report"], "headline": {
-                    "parameters": snap.get("parameters", {}),
-                    "estimate_source": snap.get("estimate_source"),
-                    "estimate": snap.get("estimate"), "modal": snap.get("modal"),
-                    "validation": snap.get("validation")},
+                    "parameters": {}, "estimate_source": None, "estimate": None, "modal": None,
+                    "validation": None} if snap is None else {
+                    "parameters": snap.parameters, "estimate_source": snap.estimate_source,
+                    "estimate": snap.estimate, "modal": snap.modal,
+                    "validation": snap.validation},
                 "history": self.history.last()}
 
     # ------------------------------------------------------------------ snapshots
@@ -73,8 +74,8 @@ class Publishing:
                 log.exception("%s: reading the ensemble failed", self.name)
         with self._snap_lock:
             snap = build_snapshot(self._parts(ens))
-            if snap.get("ensemble_state") == "final":
-                self._last_final = {"parameters": snap.get("ensemble"), "epoch": snap["epoch"],
+            if snap.ensemble_state == "final":
+                self._last_final = {"parameters": snap.ensemble, "epoch": snap.epoch,
                                     "data_version": None if self.data is None else self.data.version}
             self._snapshot = snap
             if observe and tr is not None:
@@ -82,7 +83,7 @@ class Publishing:
             self._drift_report = self._report()
         if self.events is not None and observe:
             try:
-                self.events.log_snapshot(self.name, estimate_view(snap, self._counts()))
+                self.events.log_snapshot(self.name, snap.to_json(self._counts()))
             except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
                 log.exception("%s: event log failed", self.name)
 
@@ -109,7 +110,8 @@ class Publishing:
             self._refresh_snapshot()
         if changes and self.events is not None:
             try:
-                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+                self.events.log_snapshot(self.name,
+                                        self._snapshot.to_json(self._counts()))
             except Exception:  # noqa: BLE001
                 log.exception("%s: event log failed", self.name)
         self._wake.set()  # the trainer may validate the new headline

@@ -1,20 +1,22 @@
 """Building the published snapshot (the GET .../estimate body) from the trainer's parts.
 
 Why here: the snapshot is the one place where typed values (ensemble read-out, ``Best``,
-verdicts, anchor) become the JSON the HTTP contract promises; the worker hands a frozen
-:class:`SnapshotParts` and gets a new, never-mutated dict back.
+verdicts, anchor) become the published :class:`~.published.Snapshot`: the worker hands a
+frozen :class:`SnapshotParts` and gets a new frozen snapshot back (its JSON, the body the
+HTTP contract promises, is built at the edge by ``Snapshot.to_json``).
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from siva_core import Processing, Structure
 
 from ..monitoring.drift import modal_quantities
 from .estimate import headline, jsonable
+from .published import DataView, Snapshot
 from .readout import EnsembleReadout
 from .types import Anchor, Best, DataSet, Verdict
 from .validation import validation_view
@@ -56,7 +58,30 @@ class SnapshotParts:
     ensemble_final: bool
 
 
-def build_snapshot(p: SnapshotParts, previous: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def build_snapshot(p: SnapshotParts, previous: Snapshot | None = None) -> Snapshot:
+    """The snapshot of ``p``; with ``previous`` and no ensemble read-out in ``p``, the
+    trainer's keys are the previous snapshot's (the refiner thread's refresh)."""
+    return _typed(_snapshot_json(p, None if previous is None else previous.to_json()))
+
+
+_FIELDS = tuple(f.name for f in fields(Snapshot))
+
+
+def _typed(snap: Mapping[str, Any]) -> Snapshot:
+    """The frozen snapshot of the assembled JSON (keys a snapshot lacks stay None)."""
+    kw = {k: snap[k] for k in _FIELDS if k in snap}
+    if "data" in kw:
+        d = kw["data"]
+        kw["data"] = DataView(tuple(d["train"]), tuple(d["validation"]), d["train_samples"],
+                              d["validation_samples"], d["processing"], d["version"],
+                              dict(d["rejected"]))
+    for k in ("alarms", "alarm_history"):
+        if k in kw:
+            kw[k] = tuple(kw[k] or ())
+    return Snapshot(**kw)
+
+
+def _snapshot_json(p: SnapshotParts, previous: Mapping[str, Any] | None) -> dict[str, Any]:
     snap: dict[str, Any] = {"system": p.system, "state": p.state, "epoch": p.epoch,
                             "converged": False, "converged_at": None, "parameters": {},
                             "estimate_source": None, "discriminator": {}, "error": p.error,
@@ -201,13 +226,13 @@ def agreement(structure: Structure, snap: Mapping[str, Any], p: SnapshotParts) -
     return {"status": "differ", "z": z, "max_z": worst, "why": "; ".join(why)}
 
 
-def history_entry(snap: Mapping[str, Any]) -> dict[str, Any]:
+def history_entry(snap: Snapshot) -> dict[str, Any]:
     """One point of the dashboard's traces: the headline and the ensemble with bands."""
-    return {"epoch": snap["epoch"], "time": snap["time"], "converged": snap.get("converged"),
+    return {"epoch": snap.epoch, "time": snap.time, "converged": snap.converged,
             "parameters": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                           for q, v in (snap.get("parameters") or {}).items()},
-            "estimate_source": snap.get("estimate_source"),
+                           for q, v in (snap.parameters or {}).items()},
+            "estimate_source": snap.estimate_source,
             "ensemble": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                         for q, v in (snap.get("ensemble") or {}).items()},
-            "ensemble_state": snap.get("ensemble_state"),
-            "modal": snap.get("modal")}
+                         for q, v in (snap.ensemble or {}).items()},
+            "ensemble_state": snap.ensemble_state,
+            "modal": snap.modal}

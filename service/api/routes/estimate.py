@@ -6,7 +6,6 @@ from typing import Any
 from fastapi import APIRouter, Depends, Query
 from starlette.concurrency import run_in_threadpool
 
-from ...trainer.estimate import estimate_view
 from ..auth import require_read_token, require_token
 from ..deps import ServiceDep, SystemDep
 from ..http_errors import READ_ERRORS, errors
@@ -20,7 +19,7 @@ router = APIRouter()
             dependencies=[Depends(require_read_token)])
 async def get_estimate(name: str, w: SystemDep, svc: ServiceDep) -> dict[str, Any]:
     """The latest published estimate (never waits for training)."""
-    return estimate_view(w.snapshot(), svc.counts(name))
+    return w.snapshot().to_json(svc.counts(name))
 
 
 @router.get("/v1/systems/{name}/drift", tags=["estimate"], response_model=DriftReport,
