@@ -337,8 +337,6 @@ DICT_SEAMS_ALLOWED: dict[str, str] = {
         _JSON + "its part of the checkpoint file",
     "service.monitoring.monitor.RecordMonitor.state_dict":
         _JSON + "its part of the checkpoint file",
-    "service.fleet.executor.TrainerHandle.drift_report": _SNAPSHOT_DEBT,
-    "service.fleet.executor.TrainerHandle.reset_drift": _SNAPSHOT_DEBT,
     "service.trainer.published.Snapshot.to_json":
         _JSON + "the GET .../estimate body and the MCAP snapshot event, built at the edge "
         "from the frozen Snapshot",

@@ -21,9 +21,9 @@ Parts (one concern each, frozen values between them: ``types.py``):
 from __future__ import annotations
 
 from .factory import base_snapshot, default_trainer, stop_workers
-from .published import Snapshot
+from .published import DriftReport, Snapshot
 from .readout import ENSEMBLE_MIN_SAMPLES, REFINE_MIN_SAMPLES
 from .worker import SystemWorker
 
-__all__ = ["SystemWorker", "Snapshot", "default_trainer", "base_snapshot", "stop_workers",
+__all__ = ["SystemWorker", "Snapshot", "DriftReport", "default_trainer", "base_snapshot", "stop_workers",
            "REFINE_MIN_SAMPLES", "ENSEMBLE_MIN_SAMPLES"]

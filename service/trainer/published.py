@@ -145,3 +145,41 @@ def estimate_body(snap: Mapping[str, Any], n_recordings: Mapping[str, int]) -> d
         if k not in out:
             out[k] = v
     return out
+
+
+@dataclass(frozen=True)
+class DriftReport:
+    """What ``GET .../drift`` shows of a system: the detector's rule and baseline, its
+    alarms, the per-record fits, the headline and the history of published estimates.
+
+    Frozen and swapped whole like the snapshot (read by the routes without a lock, fetched
+    from a Ray trainer host on demand); its JSON is built at the edge (:meth:`to_json`).
+    """
+
+    rule: JsonObject | None = None
+    reference: JsonObject | None = None
+    young_baseline: JsonObject | None = None          # None: no detector yet (absent)
+    n_records: int = 0
+    alarms: tuple[JsonObject, ...] = ()
+    active_alarms: tuple[str, ...] = ()
+    alarm_history: tuple[JsonObject, ...] = ()
+    records: tuple[JsonObject, ...] = ()               # the per-record fits, oldest first
+    failures: dict[str, str] = field(default_factory=dict)
+    seconds_per_record: float | None = None
+    processed_index: int = -1
+    headline: JsonObject = field(default_factory=dict)
+    history: tuple[JsonObject, ...] = ()               # one entry per published snapshot
+
+    def to_json(self, history_limit: int | None = None) -> dict[str, Any]:
+        """The report as JSON; ``history_limit``: only the last N history entries."""
+        hist = list(self.history) if history_limit is None else list(self.history[-history_limit:])
+        out: dict[str, Any] = {"rule": self.rule, "reference": self.reference}
+        if self.young_baseline is not None:
+            out["young_baseline"] = self.young_baseline
+        out.update(n_records=self.n_records, alarms=list(self.alarms),
+                   active_alarms=list(self.active_alarms),
+                   alarm_history=list(self.alarm_history), records=list(self.records),
+                   failures=dict(self.failures), seconds_per_record=self.seconds_per_record,
+                   processed_index=self.processed_index, headline=self.headline,
+                   history=hist)
+        return out

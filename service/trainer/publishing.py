@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UnknownSystem
-from .published import Snapshot
+from .published import DriftReport, Snapshot
 from .readout import EnsembleReadout, read_ensemble
 from .snapshot import SnapshotParts, build_snapshot, history_entry
 
@@ -24,26 +24,32 @@ class Publishing:
         """The latest published snapshot (frozen: read without a lock)."""
         return self._snapshot
 
-    def drift_report(self) -> dict[str, Any]:
+    def drift_report(self) -> DriftReport:
         return self._drift_report
 
-    def reset_drift(self) -> dict[str, Any]:
+    def reset_drift(self) -> DriftReport:
         """Forget baseline and alarms (after a repair): the next records form a new baseline."""
         self.monitoring.reset(self.epoch)
         with self._snap_lock:
             self._refresh_snapshot()
         return self._drift_report
 
-    def _report(self) -> dict[str, Any]:
-        view = self.monitoring.view
+    def _report(self) -> DriftReport:
+        r = self.monitoring.view["report"]  # the monitor's report, JSON-safe
         snap: Snapshot | None = getattr(self, "_snapshot", None)
-        return {**view["report"], "headline": {
-                    "parameters": {}, "estimate_source": None, "estimate": None, "modal": None,
-                    "validation": None} if snap is None else {
-                    "parameters": snap.parameters, "estimate_source": snap.estimate_source,
-                    "estimate": snap.estimate, "modal": snap.modal,
-                    "validation": snap.validation},
-                "history": self.history.last()}
+        return DriftReport(
+            rule=r["rule"], reference=r["reference"], young_baseline=r.get("young_baseline"),
+            n_records=int(r["n_records"]), alarms=tuple(r["alarms"]),
+            active_alarms=tuple(r["active_alarms"]), alarm_history=tuple(r["alarm_history"]),
+            records=tuple(r["records"]), failures=dict(r["failures"]),
+            seconds_per_record=r["seconds_per_record"],
+            processed_index=int(r["processed_index"]),
+            headline={"parameters": {}, "estimate_source": None, "estimate": None,
+                      "modal": None, "validation": None} if snap is None else {
+                      "parameters": snap.parameters, "estimate_source": snap.estimate_source,
+                      "estimate": snap.estimate, "modal": snap.modal,
+                      "validation": snap.validation},
+            history=tuple(self.history.last()))
 
     # ------------------------------------------------------------------ snapshots
     def _parts(self, ens: EnsembleReadout | None) -> SnapshotParts:

@@ -49,7 +49,7 @@ from ..settings import Settings
 from ..storage.store import Store
 from .data import DataFeed, SystemDeleted
 from .factory import base_snapshot, default_trainer
-from .published import Snapshot
+from .published import DriftReport, Snapshot
 from .lifecycle import Lifecycle
 from .monitoring import Monitoring
 from .phases import PhaseSteps
@@ -113,7 +113,7 @@ class SystemWorker(Lifecycle, PhaseSteps, Publishing):
         self._new_epochs = 0
         self._published_at = time.monotonic()
         self._snapshot: Snapshot = base_snapshot(name, self._state)
-        self._drift_report: dict[str, Any] = self._report()
+        self._drift_report: DriftReport = self._report()
 
     # ------------------------------------------------------------------ compatibility
     @property

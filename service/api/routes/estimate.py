@@ -30,8 +30,7 @@ async def get_drift(name: str, w: SystemDep,
                     ) -> dict[str, Any]:
     """History of snapshots (recent means, intervals, modal quantities) and alarms."""
     report = await run_in_threadpool(w.drift_report)  # with Ray: fetched from the actor
-    hist = report["history"] if limit is None else report["history"][-limit:]
-    return {"system": name, **report, "history": hist}
+    return {"system": name, **report.to_json(history_limit=limit)}
 
 
 @router.post("/v1/systems/{name}/drift/reset", tags=["estimate"], response_model=DriftReport,
@@ -39,4 +38,4 @@ async def get_drift(name: str, w: SystemDep,
 async def reset_drift(name: str, w: SystemDep) -> dict[str, Any]:
     """Forget the drift reference and alarms (e.g. after a repair); history is kept."""
     report = await run_in_threadpool(w.reset_drift)
-    return {"system": name, **report}
+    return {"system": name, **report.to_json()}

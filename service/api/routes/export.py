@@ -28,7 +28,8 @@ async def export(name: str, what: str, w: SystemDep, svc: ServiceDep) -> Respons
         raise NotFound(f"export {what!r}: one of {', '.join(f'{e}.csv' for e in EXPORTS)}")
     units = w.structure.parameter_units()
     est = w.snapshot().to_json(svc.counts(name))
-    report = await run_in_threadpool(w.drift_report) if what != "estimates" else {}
+    report = ((await run_in_threadpool(w.drift_report)).to_json()
+              if what != "estimates" else {})
     text = export_csv(what, est, report, units)
     return Response(text, media_type="text/csv; charset=utf-8", headers={
         "Content-Disposition": f'attachment; filename="{name}-{what}.csv"'})
