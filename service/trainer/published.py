@@ -13,6 +13,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+from ..monitoring.drift import HistoryPoint
+
 #: a JSON object nested in the snapshot (parameters, validation, alarms...): plain types only
 JsonObject = dict[str, Any]
 
@@ -168,11 +170,12 @@ class DriftReport:
     seconds_per_record: float | None = None
     processed_index: int = -1
     headline: JsonObject = field(default_factory=dict)
-    history: tuple[JsonObject, ...] = ()               # one entry per published snapshot
+    history: tuple[HistoryPoint, ...] = ()             # one entry per published snapshot
 
     def to_json(self, history_limit: int | None = None) -> dict[str, Any]:
         """The report as JSON; ``history_limit``: only the last N history entries."""
-        hist = list(self.history) if history_limit is None else list(self.history[-history_limit:])
+        hist = [h.to_json() for h in (self.history if history_limit is None
+                                      else self.history[-history_limit:])]
         out: dict[str, Any] = {"rule": self.rule, "reference": self.reference}
         if self.young_baseline is not None:
             out["young_baseline"] = self.young_baseline

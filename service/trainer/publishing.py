@@ -49,7 +49,7 @@ class Publishing:
                       "parameters": snap.parameters, "estimate_source": snap.estimate_source,
                       "estimate": snap.estimate, "modal": snap.modal,
                       "validation": snap.validation},
-            history=tuple(self.history.last()))
+            history=self.history.last())
 
     # ------------------------------------------------------------------ snapshots
     def _parts(self, ens: EnsembleReadout | None) -> SnapshotParts:

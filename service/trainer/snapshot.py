@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 from siva_core import Processing, Structure
 
-from ..monitoring.drift import modal_quantities
+from ..monitoring.drift import HistoryPoint, modal_quantities
 from .estimate import headline, jsonable
 from .published import DataView, Snapshot
 from .readout import EnsembleReadout
@@ -226,13 +226,13 @@ def agreement(structure: Structure, snap: Mapping[str, Any], p: SnapshotParts) -
     return {"status": "differ", "z": z, "max_z": worst, "why": "; ".join(why)}
 
 
-def history_entry(snap: Snapshot) -> dict[str, Any]:
+def history_entry(snap: Snapshot) -> HistoryPoint:
     """One point of the dashboard's traces: the headline and the ensemble with bands."""
-    return {"epoch": snap.epoch, "time": snap.time, "converged": snap.converged,
-            "parameters": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                           for q, v in (snap.parameters or {}).items()},
-            "estimate_source": snap.estimate_source,
-            "ensemble": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                         for q, v in (snap.ensemble or {}).items()},
-            "ensemble_state": snap.ensemble_state,
-            "modal": snap.modal}
+    return HistoryPoint(
+        epoch=snap.epoch, time=snap.time, converged=snap.converged,
+        parameters={q: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                    for q, v in (snap.parameters or {}).items()},
+        estimate_source=snap.estimate_source,
+        ensemble={q: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                  for q, v in (snap.ensemble or {}).items()},
+        ensemble_state=snap.ensemble_state, modal=snap.modal)
