@@ -349,10 +349,6 @@ DICT_SEAMS_ALLOWED: dict[str, str] = {
     "service.monitoring.monitor.RecordMonitor.process": _SNAPSHOT_DEBT,
     "service.monitoring.monitor.RecordMonitor.report": _SNAPSHOT_DEBT,
     "service.monitoring.monitor.RecordMonitor.view": _SNAPSHOT_DEBT,
-    "service.monitoring.latest_record.LatestRecordCache.get":
-        "debt: the dashboard's latest-record body (plot arrays), cached as JSON",
-    "service.monitoring.latest_record.compute_latest":
-        "debt: the dashboard's latest-record body (plot arrays), built as JSON",
     "service.replay.run.write_replay": _JSON + "the replay's report (written as a JSON file)",
 }
 
