@@ -13,7 +13,8 @@ from siva_core import Processing
 
 from .anchoring import anchor_record, apply_anchor
 from .readout import candidates, output_error_wanted, read_ensemble
-from .types import Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict, best_from
+from .types import (Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict,
+                    best_from_headline)
 
 log = logging.getLogger("siva.service.worker")
 
@@ -110,7 +111,8 @@ class PhaseSteps:
 
     def _current_best(self) -> Best | None:
         """The monitor's headline once it has one, else the first ``best``."""
-        return best_from(self.monitoring.view.get("best")) or self._best
+        view = self.monitoring.view
+        return best_from_headline(view.headline, view.epoch) or self._best
 
     # ------------------------------------------------------------------ validation
     def _offer_validation(self) -> None:

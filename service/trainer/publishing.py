@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
 
 import numpy as np
 
@@ -35,15 +34,13 @@ class Publishing:
         return self._drift_report
 
     def _report(self) -> DriftReport:
-        r = self.monitoring.view["report"]  # the monitor's report, JSON-safe
+        r = self.monitoring.view.report  # the monitor's report, JSON-safe
         snap: Snapshot | None = getattr(self, "_snapshot", None)
         return DriftReport(
-            rule=r["rule"], reference=r["reference"], young_baseline=r.get("young_baseline"),
-            n_records=int(r["n_records"]), alarms=tuple(r["alarms"]),
-            active_alarms=tuple(r["active_alarms"]), alarm_history=tuple(r["alarm_history"]),
-            records=tuple(r["records"]), failures=dict(r["failures"]),
-            seconds_per_record=r["seconds_per_record"],
-            processed_index=int(r["processed_index"]),
+            rule=r.rule, reference=r.reference, young_baseline=r.young_baseline,
+            n_records=r.n_records, alarms=r.alarms, active_alarms=r.active_alarms,
+            alarm_history=r.alarm_history, records=r.records, failures=dict(r.failures),
+            seconds_per_record=r.seconds_per_record, processed_index=r.processed_index,
             headline={"parameters": {}, "estimate_source": None, "estimate": None,
                       "modal": None, "validation": None} if snap is None else {
                       "parameters": snap.parameters, "estimate_source": snap.estimate_source,

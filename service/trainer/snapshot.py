@@ -15,6 +15,7 @@ from typing import Any, Mapping
 from siva_core import Processing, Structure
 
 from ..monitoring.drift import HistoryPoint, modal_quantities
+from ..monitoring.monitor_values import MonitorReport, MonitorView
 from .estimate import headline, jsonable
 from .published import DataView, Snapshot
 from .readout import EnsembleReadout
@@ -41,7 +42,7 @@ class SnapshotParts:
     best: Best | None                       # the headline's source (monitor, else first best)
     first_best: Best | None
     best_error: str | None
-    monitor_view: Mapping[str, Any]
+    monitor_view: MonitorView
     anchor: Anchor | None
     data: DataSet | None
     train_ids: tuple[str, ...]
@@ -109,12 +110,13 @@ def _snapshot_json(p: SnapshotParts, previous: Mapping[str, Any] | None) -> dict
         snap["modal"] = (modal_quantities(p.structure, means)
                          if means and all(m is not None for m in means) else None)
         snap["best"] = None if p.best is None else p.best.to_json()
-        snap["monitoring"] = p.monitor_view.get("summary")
-        snap["alarm_history"] = p.monitor_view["report"]["alarm_history"]
+        summary = p.monitor_view.summary
+        snap["monitoring"] = None if summary is None else summary.to_json()
+        snap["alarm_history"] = list(p.monitor_view.report.alarm_history)
     if p.best_error:
         snap["best_error"] = p.best_error
-    snap["alarms"] = [a for a in p.monitor_view["report"]["alarms"] if a["active"]]
-    snap["drift_status"] = drift_status(p.monitor_view["report"])
+    snap["alarms"] = [a for a in p.monitor_view.report.alarms if a["active"]]
+    snap["drift_status"] = drift_status(p.monitor_view.report)
     head_v, ens_v = p.verdicts
     pending = None
     if head_v is None and ens_v is None:
@@ -163,13 +165,13 @@ def _provisional(snap: Mapping[str, Any]) -> bool:
     return snap.get("ensemble_state") != "final"
 
 
-def drift_status(report: Mapping[str, Any]) -> dict[str, Any]:
+def drift_status(report: MonitorReport) -> dict[str, Any]:
     """Plain words on what the drift test can judge yet."""
-    rule = report.get("rule") or {}
+    rule = report.rule or {}
     need = rule.get("baseline_records")
-    ref = report.get("reference")
-    young = report.get("young_baseline") or {}
-    n = int(report.get("n_records") or 0)
+    ref = report.reference
+    young = report.young_baseline or {}
+    n = int(report.n_records or 0)
     if ref:
         return {"status": "monitoring", "baseline_records": ref.get("n_records"),
                 "message": f"CUSUM against a baseline of {ref.get('n_records')} records"}
