@@ -56,3 +56,24 @@ def test_drift_report_limits_its_history_and_pickles() -> None:
     again = EstimateHistory(limit=3)
     again.load_state_dict(hist.state_dict())
     assert again.last() == hist.last()
+
+
+def test_the_monitor_headline_becomes_the_same_best_as_its_json_did() -> None:
+    """``best_from_headline`` (typed) gives the Best the old JSON view gave via best_from."""
+    from service.monitoring.monitor_values import HeadlineEstimate
+    from service.trainer.types import best_from, best_from_headline
+
+    h = HeadlineEstimate(parameters={"k1": {"mean": 2.0, "std": 0.1, "ci95": [1.8, 2.2], "n": 4},
+                                     "c1": {"mean": 0.5, "std": None, "ci95": None, "n": 1}},
+                         modal={"f1": 3.0}, records=("r1", "r2"), n_records=2, first_index=0,
+                         last_index=1, time=123.0, method="weighted mean")
+    old_json = {"parameters": {p: {"value": s["mean"], "std": s["std"], "ci95": s["ci95"],
+                                   "n": s.get("n")} for p, s in h.parameters.items()},
+                "epoch": 9, "n_records": 2, "time": 123.0, "records": ["r1", "r2"],
+                "output_error": None, "refined": True, "source": "records",
+                "method": "weighted mean", "modal": {"f1": 3.0}}
+    typed = best_from_headline(h, 9)
+    assert typed is not None and typed == best_from(old_json)
+    assert typed.to_json()["parameters"]["k1"]["ci95"] == [1.8, 2.2]
+    assert best_from_headline(None, 9) is None
+    assert HeadlineEstimate.from_json(h.to_json()) == h
