@@ -76,9 +76,9 @@ def run_stream(seed: int, n_records: int, drop: float = 0.0, drop_at: int | None
         changes = mon.process(f"r{i}", i, rec)
         t_fit += time.perf_counter() - t0
         for a in changes:
-            events.append({"record": i, "parameter": a["parameter"], "state": a["state"],
-                           "change_point": (a.get("change_point") or {}).get("record_index"),
-                           "change_rel": a.get("change_rel"), "message": a["message"]})
+            events.append({"record": i, "parameter": a.parameter, "state": a.state,
+                           "change_point": a.change_point_index,
+                           "change_rel": a.change_rel, "message": a.message})
         hl = mon.headline()
         if hl is not None:
             headlines.append({"record": i, "parameters": {p: dict(v) for p, v in

@@ -26,7 +26,8 @@ import numpy as np
 from siva_core import Processing, Recording, Structure
 
 from .detector import ChangeDetector, DetectorSettings
-from .monitor_values import HeadlineEstimate, MonitorReport, MonitorSummary, MonitorView
+from .monitor_values import (AlarmChange, HeadlineEstimate, MonitorReport, MonitorSummary,
+                             MonitorView)
 from .record_fit import RECORD_MAX_NFEV, RecordFit, fit_record, modal_names, modal_values
 
 #: per-record fits kept in memory (the detector keeps its own bounded series)
@@ -87,9 +88,10 @@ class RecordMonitor:
         self._reset_index = self.processed_index + 1
 
     # ------------------------------------------------------------------ one record
-    def process(self, rid: str, index: int, record: Recording,
-                received_at: float | None = None) -> list[dict[str, Any]]:
-        """Fit one record, feed the detector, update the headline; returns alarm changes."""
+    def process(self, rid: str, index: int, record: Recording, received_at: float | None = None,
+                epoch: int | None = None) -> tuple[AlarmChange, ...]:
+        """Fit one record, feed the detector, update the headline; returns the alarms that
+        changed state (each alarm records the trainer ``epoch`` of its new state)."""
         assert self.ready, "seed() first"
         self.processed_index = max(self.processed_index, int(index))
         try:
@@ -112,12 +114,16 @@ class RecordMonitor:
             values.update(entry["modal"])
             errors.update(entry["modal_se"])
         changes = self.detector.observe(entry, values, errors) if self.detector else []
+        if epoch is not None:
+            for a in changes:
+                a.setdefault(f"epoch_{a['state']}", epoch)
+                a.setdefault("epoch", epoch)
         if ok:
             self._headline = self._compute_headline()
             if self._headline is not None:
                 self.theta0 = np.array([self._headline.mean(p) for p in self.structure.free],
                                        dtype=float)
-        return changes
+        return tuple(AlarmChange.of(a) for a in changes)
 
     # ------------------------------------------------------------------ headline
     def _window_start(self) -> int:

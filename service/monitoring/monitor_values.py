@@ -46,6 +46,26 @@ class HeadlineEstimate:
 
 
 @dataclass(frozen=True)
+class AlarmChange:
+    """An alarm that changed state at a record (raised, confirmed, cleared): what the
+    refiner logs.  The alarm itself stays the detector's record (in its report)."""
+
+    parameter: str
+    state: str
+    message: str
+    change_point_index: int | None          # the record index where the change began
+    change_rel: float | None                # the relative change, when estimated
+
+    @classmethod
+    def of(cls, alarm: Mapping[str, Any]) -> "AlarmChange":
+        cp = alarm.get("change_point") or {}
+        return cls(parameter=str(alarm["parameter"]), state=str(alarm["state"]),
+                   message=str(alarm.get("message") or ""),
+                   change_point_index=cp.get("record_index"),
+                   change_rel=alarm.get("change_rel"))
+
+
+@dataclass(frozen=True)
 class MonitorReport:
     """The detector's report (rule, baseline ``reference``, the forming baseline's test,
     alarms) with the monitor's per-record fits and failures."""

@@ -18,7 +18,7 @@ from siva_core import Processing, Recording, RecordingError, Structure
 from ..errors import UnknownSystem
 from ..monitoring.detector import DetectorSettings
 from ..monitoring.monitor import RecordMonitor
-from ..monitoring.monitor_values import MonitorView
+from ..monitoring.monitor_values import AlarmChange, MonitorView
 from ..settings import Settings
 from ..storage.store import Store
 from .estimate import jsonable
@@ -60,7 +60,7 @@ class Monitoring:
         """Immutable, JSON-safe copies of what the monitor holds, for readers."""
         self.view = json_safe(self.monitor.view(epoch, self.limit))
 
-    def step(self, epoch: int, stopping: threading.Event) -> list[dict[str, Any]] | None:
+    def step(self, epoch: int, stopping: threading.Event) -> tuple[AlarmChange, ...] | None:
         """Fit the oldest stored record not yet monitored: its alarm changes, or None when
         there is nothing to do (no record left, no ``best`` to start from, stopping)."""
         if not self.monitor.ready or stopping.is_set():
@@ -80,16 +80,12 @@ class Monitoring:
         except (OSError, RecordingError) as exc:
             self.monitor.processed_index = meta.index
             self.monitor.failures[meta.id] = str(exc)
-            return []
+            return ()
         with REFINE_LOCK.hold(MONITOR), self.lock:
             if stopping.is_set():
                 return None
-            changes = self.monitor.process(meta.id, meta.index, rec,
-                                           getattr(meta, "received_at", None))
-        for a in changes:
-            a.setdefault(f"epoch_{a['state']}", epoch)
-            a.setdefault("epoch", epoch)
-        return changes
+            return self.monitor.process(meta.id, meta.index, rec,
+                                        getattr(meta, "received_at", None), epoch=epoch)
 
     def state_dict(self) -> dict[str, Any]:
         with self.lock:  # a consistent monitor (no fit half-applied)

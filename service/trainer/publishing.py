@@ -107,7 +107,7 @@ class Publishing:
         if changes is None:
             return False
         for a in changes:
-            log.warning("%s: drift alarm %s: %s", self.name, a["state"], a["message"])
+            log.warning("%s: drift alarm %s: %s", self.name, a.state, a.message)
         with self._snap_lock:
             self.monitoring.update_view(self.epoch)
             self._refresh_snapshot()
