@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from siva_core import (OutputErrorProblem, Processing, Recording, Structure, displacement_mse,
-                       output_error, refine, simulate, simulated_recording)
+                       force_profiled_output_error, output_error, refine, simulate,
+                       simulated_recording)
 from siva_core._impl import output_error as refine_mod  # monkeypatched: private behaviour
 
 DUFFING_TRUTH = np.array([0.5, 4000.0, 300.0, 3e8])
@@ -131,6 +132,34 @@ def test_output_error_removes_the_chain_bias(lono_model: Structure, lono_truth: 
     prob = OutputErrorProblem.build(lono_model, rec, proc, theta_ref=lono_truth)
     assert prob.records[0].quantities == ["acc", "acc"]  # only acc was measured
     assert prob.n_residuals == 2 * len(proc.apply(rec, lono_model.dofs))
+
+
+def test_force_profiled_cost_is_not_fooled_by_a_force_error(lono_model: Structure,
+                                                           lono_truth: np.ndarray) -> None:
+    """A force channel 3 % high: plain output error prefers parameters that absorb the
+    error to the truth (so ``best`` once discarded a right refinement for a wrong basin,
+    issue 20); with one force multiplier fitted per record the truth wins again, exactly."""
+    fs = 1024.0
+    t = np.arange(2 * 1024 + 1) / fs
+    F = np.zeros((len(t), 2))
+    tau = t - 0.1
+    on = (tau >= 0) & (tau <= 0.0062)
+    F[on, 1] = 530.0 * np.sin(np.pi * tau[on] / 0.0062)
+    sim = simulate(lono_model, lono_truth, t, np.zeros(2), np.zeros(2), F, substeps=4)
+    rec = Recording(t, {"acc_LO": sim.a[:, 0], "acc_NO": sim.a[:, 1],
+                        "force_NO": 1.03 * F[:, 1]}, "force 3 % high")
+    proc = Processing.paper()
+    kw = dict(substeps=4, interp="linear")
+    absorbed = refine(lono_model, lono_truth, rec, proc, max_nfev=15, horizons=None,
+                      uncertainty="gauss-newton", **kw).theta
+    assert np.max(np.abs(absorbed / lono_truth - 1)) > 1e-3  # the parameters moved
+    plain = output_error(lono_model, np.stack([lono_truth, absorbed]), rec, proc, **kw)
+    assert plain[1] < plain[0]  # the trap: the wrong parameters simulate the record better
+    prof = force_profiled_output_error(lono_model, np.stack([lono_truth, absorbed]), rec,
+                                       proc, **kw)
+    assert prof[0] < 1e-3 * plain[0]  # the force error is profiled out at the truth
+    assert prof[0] < prof[1]
+    assert np.all(prof <= plain)  # multiplier 1 is always among the candidates
 
 
 def test_batched_chain_equals_per_set_chain(lono_model: Structure, lono_truth: np.ndarray,

@@ -248,12 +248,19 @@ class Refiner:
         return True
 
     def _run_validation(self, job: ValidationJob) -> None:
+        """The held-out test of the headline and the ensemble.  While it waits for its turn
+        (behind every system's re-anchors) a new record of this system goes first: the
+        refiner thread that waits here is the one that fits that record."""
         proc = job.data.processing if job.data.processing is not None else Processing()
         out: list[Verdict | None] = []
         for theta, of in ((job.headline, "headline"), (job.ensemble, "ensemble")):
             if theta is None or self._stop.is_set():
                 out.append(None)
                 continue
-            with REFINE_LOCK.hold(VALIDATION):
+            with REFINE_LOCK.hold(VALIDATION, self._gives_way) as turn:
+                if not turn:
+                    if not self._stop.is_set():
+                        self._requeue(validation=job)
+                    return
                 out.append(validate(self.structure, theta, job.records, proc, of))  # type: ignore[arg-type]
         self._on_verdicts(job, out[0], out[1])

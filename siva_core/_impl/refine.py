@@ -35,7 +35,7 @@ from scipy.optimize import least_squares
 from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
 from .output_error import (OutputErrorProblem, _state_derived, displacement_mse,  # noqa: F401
-                           output_error)
+                           force_profiled_output_error, output_error)
 from .processing import Processing
 from .recording import Recording
 from .simulate import OMEGA_H
@@ -455,4 +455,5 @@ def _pinv_sym(A: np.ndarray) -> np.ndarray:
     return (V * inv) @ V.T
 
 
-__all__ = ["output_error", "displacement_mse", "refine", "RefineResult", "OutputErrorProblem"]
+__all__ = ["output_error", "force_profiled_output_error", "displacement_mse", "refine",
+           "RefineResult", "OutputErrorProblem"]

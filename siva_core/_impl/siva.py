@@ -172,7 +172,7 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
 
     Pure: reads its arguments, touches no trainer state or random generator.
     """
-    from .refine import displacement_mse, output_error
+    from .refine import displacement_mse, force_profiled_output_error, output_error
     from .refine import refine as _refine
 
     st = structure
@@ -197,9 +197,13 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         # parameter so that sensor error is not absorbed by the structure's parameters.
         gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
         forced = all(r.has_force(st.dofs) for r in train)
-        res = _refine(st, theta_III, train, processing, fit_force_scale=forced and not gains,
+        fit_scale = forced and not gains
+        res = _refine(st, theta_III, train, processing, fit_force_scale=fit_scale,
                       bounds=(lo, hi))
-        c_ref = output_error(st, np.stack([theta_III, res.theta]), train, processing)
+        # judged by the cost the refinement minimised: with fitted force scales, start and
+        # result each with their own (``force_profiled_output_error``)
+        cost = force_profiled_output_error if fit_scale else output_error
+        c_ref = cost(st, np.stack([theta_III, res.theta]), train, processing)
         if res.success and np.all(np.isfinite(res.theta)) and c_ref[1] <= c_ref[0]:
             # Gauss-Newton std, inflated for the correlation of filtered residuals
             best, best_std = res.theta, res.std  # block-bootstrap (sandwich) std
@@ -514,17 +518,21 @@ class Siva:
         paper's Approach III selects "using identification data, validation data, or
         both": one training record can hold a wrong basin that the validation records
         expose (None otherwise)."""
-        from .refine import output_error
+        from .refine import force_profiled_output_error, output_error
 
-        # (Approach II's mean itself is not compared: its force scales were profiled out,
-        # which plain output error does not do)
+        # (Approach II's mean itself is not compared: its force scales were profiled out)
         recs = [*train, *val]
         if not np.all(np.isfinite(mean_II)):
             return None
         rec = recommend_best(self.structure, mean_II[None], train, proc)
         if not rec.refined:
             return None
-        cost = output_error(self.structure, np.stack([best, rec.theta]), recs, proc)
+        # with fitted force scales, each candidate is judged with its own per record (the
+        # refinement's cost); plain output error would favour a basin that absorbs the
+        # force's error
+        scaled = rec.refine_result is not None and rec.refine_result.force_scale is not None
+        judge = force_profiled_output_error if scaled else output_error
+        cost = judge(self.structure, np.stack([best, rec.theta]), recs, proc)
         return rec if np.isfinite(cost[1]) and cost[1] < 0.999 * cost[0] else None
 
     def _baselines(self, timing: dict[str, float]) -> dict[str, dict[str, float]]:
