@@ -76,13 +76,13 @@ def run_stream(seed: int, n_records: int, drop: float = 0.0, drop_at: int | None
         changes = mon.process(f"r{i}", i, rec)
         t_fit += time.perf_counter() - t0
         for a in changes:
-            events.append({"record": i, "parameter": a["parameter"], "state": a["state"],
-                           "change_point": (a.get("change_point") or {}).get("record_index"),
-                           "change_rel": a.get("change_rel"), "message": a["message"]})
+            events.append({"record": i, "parameter": a.parameter, "state": a.state,
+                           "change_point": a.change_point_index,
+                           "change_rel": a.change_rel, "message": a.message})
         hl = mon.headline()
         if hl is not None:
             headlines.append({"record": i, "parameters": {p: dict(v) for p, v in
-                                                          hl["parameters"].items()}})
+                                                          hl.parameters.items()}})
     return {"seed": seed, "n_records": n_records, "drop": drop, "drop_at": drop_at,
             "events": events, "headlines": headlines, "seconds_per_record": t_fit / n_records,
             "report": mon.report(limit=0)}
@@ -214,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{spr:.2f} s per record fit ({time.perf_counter() - t0:.0f} s)")
 
     # what can be detected: per-record scatter vs the floor, and the CUSUM's arithmetic
-    rule, ref = static[0]["report"]["rule"], static[0]["report"]["reference"]["quantities"]
+    rule, ref = static[0]["report"].rule, static[0]["report"].reference["quantities"]
     h, k, clip = rule["threshold_h"], rule["k"], rule["clip"]
     result["detectability"] = {}
     print(f"    h = {h:.2f}, k = {k}, |z| <= {clip}: no alarm sooner than "

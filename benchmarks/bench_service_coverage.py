@@ -75,7 +75,6 @@ def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
     """One seeded stream through an in-process service; the first final ensemble (and,
     with ``later``, the ensemble again once it holds at least each of those samples)."""
     from service.systems import SivaService
-    from service.trainer.estimate import estimate_view
     from service.settings import Settings
 
     st = case.structure()
@@ -96,14 +95,14 @@ def run_stream(case: Any, seed: int, *, n_train: int = 1, n_val: int = 1,
             while time.perf_counter() - w0 < timeout_s:
                 time.sleep(poll_s)
                 w = svc.worker("cov")
-                est = estimate_view(w.snapshot(), svc.counts("cov"))
+                est = w.snapshot().to_json(svc.counts("cov"))
                 if (est.get("ensemble_state") == "final" and est.get("estimate_source") == "best"):
                     break
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
             seen: dict[str, Any] = {}
             for n in sorted(later):
                 while time.perf_counter() - w0 < timeout_s:
-                    e2 = estimate_view(svc.worker("cov").snapshot(), svc.counts("cov"))
+                    e2 = svc.worker("cov").snapshot().to_json(svc.counts("cov"))
                     if e2.get("ensemble_state") == "final" and (
                             (e2.get("ensemble_samples") or 0) >= n or e2.get("state") == "idle"):
                         seen[str(n)] = {"samples": e2.get("ensemble_samples"),

@@ -371,12 +371,12 @@ def _estimate_theta(w: Any) -> Any:
     import numpy as np
 
     try:
-        snap = w.snapshot() or {}
+        snap = w.snapshot()
     except Exception:  # noqa: BLE001 - a trainer without a snapshot yet
         return None
-    if not snap.get("converged"):
+    if snap is None or not snap.converged:
         return None
-    params = snap.get("parameters") or {}
+    params = snap.parameters or {}
     vals = [(params.get(p) or {}).get("mean") for p in w.structure.free]
     if not vals or any(v is None for v in vals):
         return None

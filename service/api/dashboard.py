@@ -22,7 +22,8 @@ from starlette.concurrency import run_in_threadpool
 
 from siva_core import Recording, RecordingError
 
-from ..monitoring.latest_record import LatestRecordCache, compute_latest, parameters_for_simulation
+from ..monitoring.latest_record import (LatestRecord, LatestRecordCache, compute_latest,
+                                        parameters_for_simulation)
 from ..timefmt import iso_utc
 from .auth import require_read_token
 from .deps import ServiceDep, SystemDep
@@ -69,7 +70,8 @@ async def latest_record(name: str, request: Request, w: SystemDep,
         return {"system": name, "available": False, "reason": "no recording yet"}
     meta = max(metas, key=lambda m: m.index)
     snap = w.snapshot()
-    chosen = parameters_for_simulation(snap, w.structure.free)
+    chosen = parameters_for_simulation(snap.best, snap.parameters, snap.estimate_source,
+                                       w.structure.free)
     record = {"id": meta.id, "role": meta.role, "filename": meta.filename,
               "received_at": meta.received_at, "received_at_iso": iso_utc(meta.received_at)}
     if chosen is None:
@@ -79,7 +81,7 @@ async def latest_record(name: str, request: Request, w: SystemDep,
     key = (meta.id, source, tuple(round(theta[p], 12) for p in w.structure.free))
     cache: LatestRecordCache = request.app.state.latest_records
 
-    def compute() -> dict[str, Any]:
+    def compute() -> LatestRecord:
         raw = svc.store.read_raw(name, meta)
         rec = Recording.read(raw, w.structure.dofs, name=meta.filename or meta.id, fmt=meta.fmt,
                              **meta.read_options(w.structure))
@@ -94,17 +96,20 @@ async def latest_record(name: str, request: Request, w: SystemDep,
             from ..storage.uploads import processing_for
             series = compute_latest(w.structure, rec, processing_for([rec], w.structure.dofs),
                                     theta)
-        return {"system": name, "available": True, "record": record,
-                "parameters": theta, "parameters_source": source,
-                "parameter_units": w.structure.parameter_units(),
-                "epoch": snap.get("epoch"), **series}
+        return LatestRecord(record=record, parameters=theta, parameters_source=source,
+                            epoch=snap.epoch, series=series)
 
     try:
-        body, cached = await run_in_threadpool(cache.get, name, key, meta.id, compute)
+        view, cached = await run_in_threadpool(cache.get, name, key, meta.id, compute)
     except (RecordingError, ValueError, FloatingPointError) as exc:
         return {"system": name, "available": False, "record": record,
                 "reason": f"cannot simulate {meta.id}: {exc}"}
-    return {**body, "cached": cached}
+    return {"system": name, "available": True, "record": view.record,
+            "parameters": view.parameters, "parameters_source": view.parameters_source,
+            "parameter_units": w.structure.parameter_units(), "epoch": view.epoch,
+            **view.series.to_json(), "computed_at": view.computed_at,
+            "computed_at_iso": None if view.computed_at is None else iso_utc(view.computed_at),
+            "cached": cached}
 
 
 def install(app: FastAPI) -> None:

@@ -21,6 +21,8 @@ from prometheus_client import (CONTENT_TYPE_LATEST, CollectorRegistry, Counter, 
 from prometheus_client.core import GaugeMetricFamily
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from ..trainer.published import Snapshot
+
 #: alarm state as a number, for a Grafana panel (0 none, 1 raised, 2 confirmed; cleared is 0)
 ALARM_LEVEL = {"raised": 1, "active": 1, "confirmed": 2}
 
@@ -117,14 +119,13 @@ class SystemsCollector:
                                      "latest snapshot", labels=["system"]),
         }
         for name, w in sorted(list(self.service.workers.items())):
-            snap: Mapping[str, Any] = w.snapshot()
-            self._system(fam, name, w, snap)
+            self._system(fam, name, w, w.snapshot())
         yield from fam.values()
 
     def _system(self, fam: dict[str, GaugeMetricFamily], name: str, w: Any,
-                snap: Mapping[str, Any]) -> None:
-        source = str(snap.get("estimate_source") or "none")
-        for p, s in (snap.get("parameters") or {}).items():
+                snap: Snapshot) -> None:
+        source = str(snap.estimate_source or "none")
+        for p, s in (snap.parameters or {}).items():
             if not isinstance(s, Mapping):
                 continue
             v = _num(s.get("mean", s.get("value")))
@@ -137,14 +138,14 @@ class SystemsCollector:
                     fam["lo"].add_metric([name, p], lo)
                 if hi is not None:
                     fam["hi"].add_metric([name, p], hi)
-        best = snap.get("best")
+        best = snap.best
         if isinstance(best, Mapping):
             for p, s in (best.get("parameters") or {}).items():
                 v = _num(s.get("value")) if isinstance(s, Mapping) else None
                 if v is not None:
                     fam["best"].add_metric([name, p], v)
         levels = {p: 0.0 for p in w.structure.free}
-        for a in snap.get("alarms") or []:
+        for a in snap.alarms:
             if not isinstance(a, Mapping) or "parameter" not in a:
                 continue
             state = str(a.get("state", "active" if a.get("active", True) else "cleared"))
@@ -152,7 +153,7 @@ class SystemsCollector:
                                               float(ALARM_LEVEL.get(state, 0)))
         for p, lvl in levels.items():
             fam["alarm"].add_metric([name, p], lvl)
-        val = snap.get("validation")
+        val = snap.validation
         if isinstance(val, Mapping):
             if val.get("verdict") in ("accepted", "rejected"):
                 fam["val_rej"].add_metric([name], 1.0 if val["verdict"] == "rejected" else 0.0)
@@ -168,16 +169,16 @@ class SystemsCollector:
                         fam["val_t"].add_metric([name, of, rec], float(t_val))
                     if _num(p_val) is not None:
                         fam["val_p"].add_metric([name, of, rec], float(p_val))
-        if snap.get("ensemble_state") is not None:
-            fam["ens_final"].add_metric([name], 1.0 if snap["ensemble_state"] == "final" else 0.0)
-        spe = _num(snap.get("seconds_per_epoch"))
+        if snap.ensemble_state is not None:
+            fam["ens_final"].add_metric([name], 1.0 if snap.ensemble_state == "final" else 0.0)
+        spe = _num(snap.seconds_per_epoch)
         if spe:
             fam["eps"].add_metric([name], 1.0 / spe)
-        ep = _num(snap.get("epoch"))
+        ep = _num(snap.epoch)
         if ep is not None:
             fam["epoch"].add_metric([name], ep)
-        fam["conv"].add_metric([name], 1.0 if snap.get("converged") else 0.0)
-        modal = snap.get("modal")
+        fam["conv"].add_metric([name], 1.0 if snap.converged else 0.0)
+        modal = snap.modal
         if isinstance(modal, Mapping):
             for i, (f, z) in enumerate(zip(modal.get("frequency_hz") or [],
                                            modal.get("damping_ratio") or []), 1):
@@ -191,7 +192,7 @@ class SystemsCollector:
             counts = {}
         for role, n in counts.items():
             fam["recs"].add_metric([name, role], float(n))
-        t = _num(snap.get("time"))
+        t = _num(snap.time)
         if t is not None:
             fam["age"].add_metric([name], t)
 

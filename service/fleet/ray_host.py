@@ -21,12 +21,15 @@ import uuid
 from collections import deque
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import UnknownSystem
 from ..settings import Settings
 from ..storage.trainer_view import TrainerStoreView
 from .ray_placement import read_placement
+
+if TYPE_CHECKING:  # the trainer (torch) is imported when a system is added
+    from ..trainer import DriftReport
 
 log = logging.getLogger("siva.service.ray_host")
 
@@ -154,10 +157,10 @@ class TrainerHost:
             raise KeyError(f"system {name!r} is not on trainer host {self.host_id}")
         return w
 
-    def reset_drift(self, name: str) -> dict[str, Any]:
+    def reset_drift(self, name: str) -> DriftReport:
         return self._worker(name).reset_drift()
 
-    def drift_report(self, name: str) -> dict[str, Any]:
+    def drift_report(self, name: str) -> DriftReport:
         """Asked for by a GET .../drift: a drift report holds up to SIVA_HISTORY_LIMIT
         snapshots (about 1 MB), too much to ship with every poll; active alarms travel
         with every snapshot."""

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from siva_core import Structure
 
 from ..errors import Unavailable
-from ..trainer import base_snapshot
+from ..trainer import DriftReport, Snapshot, base_snapshot
 
 if TYPE_CHECKING:
     from .ray_executor import RayExecutor
@@ -39,9 +39,8 @@ class RayTrainer:
         self.structure = structure
         self.host_id = host_id
         self.generation: int | None = None
-        self._snapshot: dict[str, Any] = base_snapshot(name, "starting")
-        self._drift: dict[str, Any] = {"alarms": [], "alarm_history": [], "records": [],
-                                       "history": [], "headline": {}}
+        self._snapshot: Snapshot = base_snapshot(name, "starting")
+        self._drift = DriftReport()
         self._status: dict[str, Any] = {}
         self._stopping = False
         self.epoch = 0
@@ -96,7 +95,7 @@ class RayTrainer:
         except Exception as exc:  # noqa: BLE001 - the actor is gone or slow: nothing to stop
             log.warning("%s: stopping the trainer on host %s: %s", self.name, self.host_id, exc)
 
-    def reset_drift(self) -> dict[str, Any]:
+    def reset_drift(self) -> DriftReport:
         ray = self.executor.ray
         try:
             report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
@@ -109,10 +108,10 @@ class RayTrainer:
         return report
 
     # ------------------------------------------------------------------ reads
-    def snapshot(self) -> dict[str, Any]:
+    def snapshot(self) -> Snapshot:
         return self._snapshot
 
-    def drift_report(self) -> dict[str, Any]:
+    def drift_report(self) -> DriftReport:
         """The drift report, fetched on demand: a report holds up to SIVA_HISTORY_LIMIT
         snapshots (about 1 MB), too much for every poll.  A read waits at most
         ``DRIFT_WAIT_S`` for a copy older than ``DRIFT_FRESH_S`` (the first read of a

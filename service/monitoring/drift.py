@@ -8,28 +8,59 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
+
+
+@dataclass(frozen=True)
+class HistoryPoint:
+    """One published estimate in the history: the headline and the ensemble with their
+    bands ({p: {mean, std, ci95}}), for the dashboard's traces and the drift export."""
+
+    epoch: int
+    time: float
+    converged: bool | None
+    parameters: dict[str, dict[str, Any]]
+    estimate_source: str | None
+    ensemble: dict[str, dict[str, Any]]
+    ensemble_state: str | None
+    modal: dict[str, Any] | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"epoch": self.epoch, "time": self.time, "converged": self.converged,
+                "parameters": self.parameters, "estimate_source": self.estimate_source,
+                "ensemble": self.ensemble, "ensemble_state": self.ensemble_state,
+                "modal": self.modal}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "HistoryPoint":
+        """From a checkpoint's history (older checkpoints may lack the ensemble keys)."""
+        return cls(epoch=int(d.get("epoch") or 0), time=float(d.get("time") or 0.0),
+                   converged=d.get("converged"), parameters=dict(d.get("parameters") or {}),
+                   estimate_source=d.get("estimate_source"),
+                   ensemble=dict(d.get("ensemble") or {}),
+                   ensemble_state=d.get("ensemble_state"), modal=d.get("modal"))
 
 
 class EstimateHistory:
     """A bounded history of published estimates (one entry per snapshot)."""
 
     def __init__(self, limit: int = 2000) -> None:
-        self.entries: deque[dict[str, Any]] = deque(maxlen=limit)
+        self.entries: deque[HistoryPoint] = deque(maxlen=limit)
 
-    def add(self, entry: Mapping[str, Any]) -> None:
-        self.entries.append(dict(entry))
+    def add(self, entry: HistoryPoint) -> None:
+        self.entries.append(entry)
 
-    def last(self, limit: int | None = None) -> list[dict[str, Any]]:
-        hist = list(self.entries)
+    def last(self, limit: int | None = None) -> tuple[HistoryPoint, ...]:
+        hist = tuple(self.entries)
         return hist if limit is None else hist[-limit:]
 
     def state_dict(self) -> dict[str, Any]:
-        return {"history": list(self.entries)}
+        return {"history": [e.to_json() for e in self.entries]}
 
     def load_state_dict(self, d: Mapping[str, Any]) -> None:
         self.entries.clear()
-        self.entries.extend(d.get("history", []) if d else [])
+        self.entries.extend(HistoryPoint.from_json(e) for e in (d.get("history", []) if d else []))
 
 
 def modal_quantities(structure: Any, theta: Sequence[float]) -> dict[str, list[float]] | None:

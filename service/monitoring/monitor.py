@@ -26,6 +26,8 @@ import numpy as np
 from siva_core import Processing, Recording, Structure
 
 from .detector import ChangeDetector, DetectorSettings
+from .monitor_values import (AlarmChange, HeadlineEstimate, MonitorReport, MonitorSummary,
+                             MonitorView)
 from .record_fit import RECORD_MAX_NFEV, RecordFit, fit_record, modal_names, modal_values
 
 #: per-record fits kept in memory (the detector keeps its own bounded series)
@@ -34,7 +36,7 @@ FITS_KEPT = 500
 
 class RecordMonitor:
     """Per-record fits -> detector and headline.  Not thread-safe: one thread feeds it
-    (the refiner); readers take the dicts returned by ``headline``/``report``."""
+    (the refiner); readers take the frozen values of ``headline``/``report``/``view``."""
 
     def __init__(self, structure: Structure, settings: DetectorSettings | None = None, *,
                  window: int = 8, max_nfev: int = RECORD_MAX_NFEV,
@@ -51,7 +53,7 @@ class RecordMonitor:
         self.processed_index = -1                   # highest store index handled
         self.failures: dict[str, str] = {}
         self.past_alarms: list[dict[str, Any]] = []  # alarms of baselines before a reset
-        self._headline: dict[str, Any] | None = None
+        self._headline: HeadlineEstimate | None = None
 
     # ------------------------------------------------------------------ setup
     @property
@@ -86,9 +88,10 @@ class RecordMonitor:
         self._reset_index = self.processed_index + 1
 
     # ------------------------------------------------------------------ one record
-    def process(self, rid: str, index: int, record: Recording,
-                received_at: float | None = None) -> list[dict[str, Any]]:
-        """Fit one record, feed the detector, update the headline; returns alarm changes."""
+    def process(self, rid: str, index: int, record: Recording, received_at: float | None = None,
+                epoch: int | None = None) -> tuple[AlarmChange, ...]:
+        """Fit one record, feed the detector, update the headline; returns the alarms that
+        changed state (each alarm records the trainer ``epoch`` of its new state)."""
         assert self.ready, "seed() first"
         self.processed_index = max(self.processed_index, int(index))
         try:
@@ -111,12 +114,16 @@ class RecordMonitor:
             values.update(entry["modal"])
             errors.update(entry["modal_se"])
         changes = self.detector.observe(entry, values, errors) if self.detector else []
+        if epoch is not None:
+            for a in changes:
+                a.setdefault(f"epoch_{a['state']}", epoch)
+                a.setdefault("epoch", epoch)
         if ok:
             self._headline = self._compute_headline()
             if self._headline is not None:
-                self.theta0 = np.array([self._headline["parameters"][p]["mean"]
-                                        for p in self.structure.free], dtype=float)
-        return changes
+                self.theta0 = np.array([self._headline.mean(p) for p in self.structure.free],
+                                       dtype=float)
+        return tuple(AlarmChange.of(a) for a in changes)
 
     # ------------------------------------------------------------------ headline
     def _window_start(self) -> int:
@@ -129,7 +136,7 @@ class RecordMonitor:
                 start = max(start, int(a.get("cleared_index", -1)) - self.settings.clear_records + 1)
         return start
 
-    def _compute_headline(self) -> dict[str, Any] | None:
+    def _compute_headline(self) -> HeadlineEstimate | None:
         start = self._window_start()
         fits = [f for f in self.fits if f["ok"] and f["index"] >= start][-self.window:]
         if not fits:
@@ -143,17 +150,18 @@ class RecordMonitor:
             params[p] = combine(x, se * calib)
         theta = [params[p]["mean"] for p in self.structure.free]
         modal, _ = modal_values(self.structure, np.asarray(theta, dtype=float))
-        return {"parameters": params, "modal": modal, "records": [f["id"] for f in fits],
-                "n_records": len(fits), "first_index": fits[0]["index"],
-                "last_index": fits[-1]["index"], "time": time.time(),
-                "method": f"precision-weighted mean of per-record output-error fits over the "
-                          f"last {len(fits)} record(s) since the latest change"}
+        return HeadlineEstimate(
+            parameters=params, modal=modal, records=tuple(f["id"] for f in fits),
+            n_records=len(fits), first_index=fits[0]["index"], last_index=fits[-1]["index"],
+            time=time.time(),
+            method=f"precision-weighted mean of per-record output-error fits over the "
+                   f"last {len(fits)} record(s) since the latest change")
 
-    def headline(self) -> dict[str, Any] | None:
+    def headline(self) -> HeadlineEstimate | None:
         return self._headline
 
     # ------------------------------------------------------------------ read-out
-    def report(self, limit: int | None = None) -> dict[str, Any]:
+    def report(self, limit: int | None = None) -> MonitorReport:
         det = self.detector.report() if self.detector else {
             "rule": {**asdict(self.settings), "threshold_h": None, "quantities": None,
                      "false_alarms_per_1000_records_nominal": 1000.0 / self.settings.arl0_records,
@@ -162,33 +170,30 @@ class RecordMonitor:
             "reference": None, "n_records": 0, "alarms": [], "active_alarms": []}
         fits = list(self.fits)[-limit:] if limit else list(self.fits)
         seconds = [f["seconds"] for f in fits if f.get("seconds") is not None]
-        return {**det, "alarm_history": self.past_alarms + det["alarms"],
-                "records": fits, "failures": dict(self.failures),
-                "seconds_per_record": float(np.mean(seconds)) if seconds else None,
-                "processed_index": self.processed_index}
+        return MonitorReport(
+            rule=det["rule"], reference=det["reference"],
+            young_baseline=det.get("young_baseline"), n_records=int(det["n_records"]),
+            alarms=tuple(det["alarms"]), active_alarms=tuple(det["active_alarms"]),
+            alarm_history=tuple(self.past_alarms + det["alarms"]), records=tuple(fits),
+            failures=dict(self.failures),
+            seconds_per_record=float(np.mean(seconds)) if seconds else None,
+            processed_index=self.processed_index)
 
-    def view(self, epoch: int, limit: int | None = None) -> dict[str, Any]:
-        """What readers get: the drift ``report``, the headline as ``best`` (the shape of
-        the estimate's ``best``; None before the first per-record fit) and a ``summary``."""
+    def view(self, epoch: int, limit: int | None = None) -> MonitorView:
+        """What readers get: the drift ``report``, the headline (the estimate's ``best``
+        from ``epoch``; None before the first per-record fit) and a ``summary``."""
         report = self.report(limit=limit)
-        hl = self._headline
-        best = None
-        if hl is not None:
-            best = {"parameters": {p: {"value": s["mean"], "std": s["std"], "ci95": s["ci95"],
-                                       "n": s.get("n")} for p, s in hl["parameters"].items()},
-                    "epoch": epoch, "n_records": hl["n_records"], "time": hl["time"],
-                    "records": hl["records"], "output_error": None, "refined": True,
-                    "source": "records", "method": hl["method"], "modal": hl.get("modal")}
-        summary = {"records_fitted": len(self.fits), "processed_index": self.processed_index,
-                   "baseline": (report.get("reference") or {}).get("n_records"),
-                   "seconds_per_record": report.get("seconds_per_record"),
-                   "active_alarms": report.get("active_alarms", [])}
-        return {"report": report, "best": best, "summary": summary}
+        summary = MonitorSummary(
+            records_fitted=len(self.fits), processed_index=self.processed_index,
+            baseline=(report.reference or {}).get("n_records"),
+            seconds_per_record=report.seconds_per_record, active_alarms=report.active_alarms)
+        return MonitorView(report=report, headline=self._headline, epoch=epoch,
+                           summary=summary)
 
     def state_dict(self) -> dict[str, Any]:
         return {"theta0": None if self.theta0 is None else self.theta0.tolist(),
                 "processing": self.processing, "fits": list(self.fits),
-                "processed_index": self.processed_index, "headline": self._headline,
+                "processed_index": self.processed_index, "headline": None if self._headline is None else self._headline.to_json(),
                 "detector": self.detector.state_dict() if self.detector else None,
                 "reset_index": getattr(self, "_reset_index", -1),
                 "past_alarms": self.past_alarms}
@@ -201,7 +206,8 @@ class RecordMonitor:
         self.processing = d.get("processing") or self.processing
         self.fits = deque(d.get("fits", []), maxlen=FITS_KEPT)
         self.processed_index = int(d.get("processed_index", -1))
-        self._headline = d.get("headline")
+        hl = d.get("headline")
+        self._headline = HeadlineEstimate.from_json(hl) if hl else None
         self._reset_index = int(d.get("reset_index", -1))
         self.past_alarms = list(d.get("past_alarms", []))
         if self.theta0 is not None:

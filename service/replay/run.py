@@ -223,7 +223,8 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
     parameter's std, 0 when identical - and the ``verdict`` identical / reproduced /
     differs, with the platform comparison that says which one was to be expected).
     """
-    from ..trainer.estimate import estimate_view, jsonable
+    from ..trainer.estimate import jsonable
+    from ..trainer.published import estimate_body
     from ..trainer.readout import read_ensemble
 
     files = log_files(path)
@@ -244,7 +245,7 @@ def replay(path: str | Path | Sequence[str | Path], *, trainer_factory: Any = No
             "system": plan.spec.system, "ensemble": ens.to_json(), "ensemble_source": ens.source,
             "ensemble_state": ens.state, "phase": ens.phase,
             **_logged_monitoring(plan.final_snapshot)}
-    out = jsonable(estimate_view(snap, plan.counts))
+    out = jsonable(estimate_body(snap, plan.counts))
     out["replay"] = jsonable({
         "files": plan.files, "epochs": int(trainer.epoch),
         "data_changes": len(plan.datasets), "exact": plan.exact,

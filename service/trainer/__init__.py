@@ -12,16 +12,18 @@ Parts (one concern each, frozen values between them: ``types.py``):
 - ``anchoring.py``  the output-error linearisation at an anchor (shared with replay)
 - ``readout.py``    the ensemble read-out, provisional until final (shared with replay)
 - ``validation.py`` the held-out test (T, p-value, verdict) for headline and ensemble
-- ``snapshot.py``   the published snapshot, agreement of ensemble and headline
+- ``published.py``  Snapshot: the frozen value a trainer publishes (JSON at the edge)
+- ``snapshot.py``   building the snapshot, agreement of ensemble and headline
 - ``factory.py``    making and stopping trainers
-- ``estimate.py``   reading an estimate out and shaping ``GET .../estimate`` (shared with replay)
+- ``estimate.py``   reading an estimate out, the headline keys (shared with replay)
 - ``replay_buffer.py`` which records are held in memory (window + reservoir)
 """
 from __future__ import annotations
 
 from .factory import base_snapshot, default_trainer, stop_workers
+from .published import DriftReport, Snapshot
 from .readout import ENSEMBLE_MIN_SAMPLES, REFINE_MIN_SAMPLES
 from .worker import SystemWorker
 
-__all__ = ["SystemWorker", "default_trainer", "base_snapshot", "stop_workers",
+__all__ = ["SystemWorker", "Snapshot", "DriftReport", "default_trainer", "base_snapshot", "stop_workers",
            "REFINE_MIN_SAMPLES", "ENSEMBLE_MIN_SAMPLES"]

@@ -1,4 +1,4 @@
-"""Reading an estimate out of a trainer and shaping the ``GET .../estimate`` body.
+"""Reading an estimate out of a trainer: the ensemble summary and the headline keys.
 
 Shared by the live worker and ``siva replay`` so both read out the same way.
 """
@@ -32,22 +32,6 @@ def jsonable(x: Any) -> Any:
     if is_dataclass(x) and not isinstance(x, type):
         return jsonable(asdict(x))
     return x
-
-
-def estimate_view(snapshot: Mapping[str, Any], counts: Mapping[str, int]) -> dict[str, Any]:
-    """The GET .../estimate body: the contract's keys first, then everything else."""
-    out = {"parameters": {p: {"mean": s.get("mean"), "std": s.get("std"), "ci95": s.get("ci95"),
-                              **{k: v for k, v in s.items() if k not in ("mean", "std", "ci95")}}
-                          for p, s in snapshot.get("parameters", {}).items()},
-           "discriminator": snapshot.get("discriminator", {}),
-           "epoch": snapshot.get("epoch", 0),
-           "converged": snapshot.get("converged", False),
-           "n_recordings": {"train": int(counts.get("train", 0)),
-                            "validation": int(counts.get("validation", 0))}}
-    for k, v in snapshot.items():
-        if k not in out:
-            out[k] = v
-    return out
 
 
 def estimate_parameters(structure: Structure, tr: Any) -> tuple[dict[str, Any], str | None]:

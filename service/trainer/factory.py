@@ -7,6 +7,7 @@ from typing import Any
 from siva_core import Structure
 
 from ..settings import Settings
+from .published import Snapshot
 
 
 def stop_workers(workers: list[Any], timeout: float) -> list[str]:
@@ -20,11 +21,9 @@ def stop_workers(workers: list[Any], timeout: float) -> list[str]:
 
 
 def base_snapshot(name: str, state: str, epoch: int = 0,
-                  error: str | None = None) -> dict[str, Any]:
-    """The keys every snapshot has, before any estimate exists."""
-    return {"system": name, "state": state, "epoch": epoch, "converged": False,
-            "converged_at": None, "parameters": {}, "estimate_source": None,
-            "discriminator": {}, "error": error, "time": time.time(), "provisional": True}
+                  error: str | None = None) -> Snapshot:
+    """The snapshot every system has before any estimate exists."""
+    return Snapshot(system=name, state=state, epoch=epoch, error=error)
 
 
 def default_trainer(structure: Structure, settings: Settings) -> Any:

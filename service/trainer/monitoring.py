@@ -8,7 +8,8 @@ half-applied, and the immutable JSON view readers get.
 from __future__ import annotations
 
 import threading
-from typing import Any
+from dataclasses import fields, is_dataclass, replace
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -17,6 +18,7 @@ from siva_core import Processing, Recording, RecordingError, Structure
 from ..errors import UnknownSystem
 from ..monitoring.detector import DetectorSettings
 from ..monitoring.monitor import RecordMonitor
+from ..monitoring.monitor_values import AlarmChange, MonitorView
 from ..settings import Settings
 from ..storage.store import Store
 from .estimate import jsonable
@@ -37,7 +39,8 @@ class Monitoring:
             window=settings.headline_window, max_nfev=settings.record_max_nfev,
             max_records=settings.history_limit)
         self.lock = threading.Lock()  # the monitor changes under it (refiner, reset)
-        self.view: dict[str, Any] = {"report": self.monitor.report(limit=0), "best": None}
+        self.view = MonitorView(report=json_safe(self.monitor.report(limit=0)), headline=None,
+                                epoch=0, summary=None)
 
     @property
     def ready(self) -> bool:
@@ -55,9 +58,9 @@ class Monitoring:
 
     def update_view(self, epoch: int) -> None:
         """Immutable, JSON-safe copies of what the monitor holds, for readers."""
-        self.view = jsonable(self.monitor.view(epoch, self.limit))
+        self.view = json_safe(self.monitor.view(epoch, self.limit))
 
-    def step(self, epoch: int, stopping: threading.Event) -> list[dict[str, Any]] | None:
+    def step(self, epoch: int, stopping: threading.Event) -> tuple[AlarmChange, ...] | None:
         """Fit the oldest stored record not yet monitored: its alarm changes, or None when
         there is nothing to do (no record left, no ``best`` to start from, stopping)."""
         if not self.monitor.ready or stopping.is_set():
@@ -77,16 +80,12 @@ class Monitoring:
         except (OSError, RecordingError) as exc:
             self.monitor.processed_index = meta.index
             self.monitor.failures[meta.id] = str(exc)
-            return []
+            return ()
         with REFINE_LOCK.hold(MONITOR), self.lock:
             if stopping.is_set():
                 return None
-            changes = self.monitor.process(meta.id, meta.index, rec,
-                                           getattr(meta, "received_at", None))
-        for a in changes:
-            a.setdefault(f"epoch_{a['state']}", epoch)
-            a.setdefault("epoch", epoch)
-        return changes
+            return self.monitor.process(meta.id, meta.index, rec,
+                                        getattr(meta, "received_at", None), epoch=epoch)
 
     def state_dict(self) -> dict[str, Any]:
         with self.lock:  # a consistent monitor (no fit half-applied)
@@ -95,3 +94,23 @@ class Monitoring:
     def load_state_dict(self, d: dict[str, Any], epoch: int) -> None:
         self.monitor.load_state_dict(d)
         self.update_view(epoch)
+
+
+V = TypeVar("V")
+
+
+def json_safe(value: V) -> V:
+    """A copy of a frozen dataclass whose nested values are plain JSON (NaN as None, no
+    numpy), its nested dataclasses too; tuples stay tuples."""
+    if value is None or not is_dataclass(value) or isinstance(value, type):
+        return value
+    out: dict[str, Any] = {}
+    for f in fields(value):
+        v = getattr(value, f.name)
+        if is_dataclass(v) and not isinstance(v, type):
+            out[f.name] = json_safe(v)
+        elif isinstance(v, tuple):
+            out[f.name] = tuple(jsonable(list(v)))
+        else:
+            out[f.name] = jsonable(v)
+    return replace(value, **out)  # type: ignore[type-var]

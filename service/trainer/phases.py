@@ -12,9 +12,9 @@ import numpy as np
 from siva_core import Processing
 
 from .anchoring import anchor_record, apply_anchor
-from .estimate import estimate_view
 from .readout import candidates, output_error_wanted, read_ensemble
-from .types import Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict, best_from
+from .types import (Anchor, Best, DataSet, RefineJob, ValidationJob, Verdict,
+                    best_from_headline)
 
 log = logging.getLogger("siva.service.worker")
 
@@ -111,7 +111,8 @@ class PhaseSteps:
 
     def _current_best(self) -> Best | None:
         """The monitor's headline once it has one, else the first ``best``."""
-        return best_from(self.monitoring.view.get("best")) or self._best
+        view = self.monitoring.view
+        return best_from_headline(view.headline, view.epoch) or self._best
 
     # ------------------------------------------------------------------ validation
     def _offer_validation(self) -> None:
@@ -144,6 +145,7 @@ class PhaseSteps:
             self._refresh_snapshot()
         if self.events is not None:
             try:
-                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+                self.events.log_snapshot(self.name,
+                                        self._snapshot.to_json(self._counts()))
             except Exception:  # noqa: BLE001
                 log.exception("%s: event log failed", self.name)

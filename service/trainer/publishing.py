@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
 
 import numpy as np
 
 from ..errors import UnknownSystem
-from .estimate import estimate_view
+from .published import DriftReport, Snapshot
 from .readout import EnsembleReadout, read_ensemble
 from .snapshot import SnapshotParts, build_snapshot, history_entry
 
@@ -20,29 +19,34 @@ log = logging.getLogger("siva.service.worker")
 class Publishing:
     """SystemWorker's snapshots and drift report (mixin: the state is the worker's)."""
 
-    def snapshot(self) -> dict[str, Any]:
-        """The latest published snapshot (immutable by convention: never mutated)."""
+    def snapshot(self) -> Snapshot:
+        """The latest published snapshot (frozen: read without a lock)."""
         return self._snapshot
 
-    def drift_report(self) -> dict[str, Any]:
+    def drift_report(self) -> DriftReport:
         return self._drift_report
 
-    def reset_drift(self) -> dict[str, Any]:
+    def reset_drift(self) -> DriftReport:
         """Forget baseline and alarms (after a repair): the next records form a new baseline."""
         self.monitoring.reset(self.epoch)
         with self._snap_lock:
             self._refresh_snapshot()
         return self._drift_report
 
-    def _report(self) -> dict[str, Any]:
-        view = self.monitoring.view
-        snap = getattr(self, "_snapshot", {}) or {}
-        return {**view["report"], "headline": {
-                    "parameters": snap.get("parameters", {}),
-                    "estimate_source": snap.get("estimate_source"),
-                    "estimate": snap.get("estimate"), "modal": snap.get("modal"),
-                    "validation": snap.get("validation")},
-                "history": self.history.last()}
+    def _report(self) -> DriftReport:
+        r = self.monitoring.view.report  # the monitor's report, JSON-safe
+        snap: Snapshot | None = getattr(self, "_snapshot", None)
+        return DriftReport(
+            rule=r.rule, reference=r.reference, young_baseline=r.young_baseline,
+            n_records=r.n_records, alarms=r.alarms, active_alarms=r.active_alarms,
+            alarm_history=r.alarm_history, records=r.records, failures=dict(r.failures),
+            seconds_per_record=r.seconds_per_record, processed_index=r.processed_index,
+            headline={"parameters": {}, "estimate_source": None, "estimate": None,
+                      "modal": None, "validation": None} if snap is None else {
+                      "parameters": snap.parameters, "estimate_source": snap.estimate_source,
+                      "estimate": snap.estimate, "modal": snap.modal,
+                      "validation": snap.validation},
+            history=self.history.last())
 
     # ------------------------------------------------------------------ snapshots
     def _parts(self, ens: EnsembleReadout | None) -> SnapshotParts:
@@ -73,8 +77,8 @@ class Publishing:
                 log.exception("%s: reading the ensemble failed", self.name)
         with self._snap_lock:
             snap = build_snapshot(self._parts(ens))
-            if snap.get("ensemble_state") == "final":
-                self._last_final = {"parameters": snap.get("ensemble"), "epoch": snap["epoch"],
+            if snap.ensemble_state == "final":
+                self._last_final = {"parameters": snap.ensemble, "epoch": snap.epoch,
                                     "data_version": None if self.data is None else self.data.version}
             self._snapshot = snap
             if observe and tr is not None:
@@ -82,7 +86,7 @@ class Publishing:
             self._drift_report = self._report()
         if self.events is not None and observe:
             try:
-                self.events.log_snapshot(self.name, estimate_view(snap, self._counts()))
+                self.events.log_snapshot(self.name, snap.to_json(self._counts()))
             except Exception:  # noqa: BLE001 - the log is an audit trail, not a dependency
                 log.exception("%s: event log failed", self.name)
 
@@ -103,13 +107,14 @@ class Publishing:
         if changes is None:
             return False
         for a in changes:
-            log.warning("%s: drift alarm %s: %s", self.name, a["state"], a["message"])
+            log.warning("%s: drift alarm %s: %s", self.name, a.state, a.message)
         with self._snap_lock:
             self.monitoring.update_view(self.epoch)
             self._refresh_snapshot()
         if changes and self.events is not None:
             try:
-                self.events.log_snapshot(self.name, estimate_view(self._snapshot, self._counts()))
+                self.events.log_snapshot(self.name,
+                                        self._snapshot.to_json(self._counts()))
             except Exception:  # noqa: BLE001
                 log.exception("%s: event log failed", self.name)
         self._wake.set()  # the trainer may validate the new headline

@@ -1,20 +1,23 @@
 """Building the published snapshot (the GET .../estimate body) from the trainer's parts.
 
 Why here: the snapshot is the one place where typed values (ensemble read-out, ``Best``,
-verdicts, anchor) become the JSON the HTTP contract promises; the worker hands a frozen
-:class:`SnapshotParts` and gets a new, never-mutated dict back.
+verdicts, anchor) become the published :class:`~.published.Snapshot`: the worker hands a
+frozen :class:`SnapshotParts` and gets a new frozen snapshot back (its JSON, the body the
+HTTP contract promises, is built at the edge by ``Snapshot.to_json``).
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 from siva_core import Processing, Structure
 
-from ..monitoring.drift import modal_quantities
+from ..monitoring.drift import HistoryPoint, modal_quantities
+from ..monitoring.monitor_values import MonitorReport, MonitorView
 from .estimate import headline, jsonable
+from .published import DataView, Snapshot
 from .readout import EnsembleReadout
 from .types import Anchor, Best, DataSet, Verdict
 from .validation import validation_view
@@ -39,7 +42,7 @@ class SnapshotParts:
     best: Best | None                       # the headline's source (monitor, else first best)
     first_best: Best | None
     best_error: str | None
-    monitor_view: Mapping[str, Any]
+    monitor_view: MonitorView
     anchor: Anchor | None
     data: DataSet | None
     train_ids: tuple[str, ...]
@@ -56,7 +59,30 @@ class SnapshotParts:
     ensemble_final: bool
 
 
-def build_snapshot(p: SnapshotParts, previous: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def build_snapshot(p: SnapshotParts, previous: Snapshot | None = None) -> Snapshot:
+    """The snapshot of ``p``; with ``previous`` and no ensemble read-out in ``p``, the
+    trainer's keys are the previous snapshot's (the refiner thread's refresh)."""
+    return _typed(_snapshot_json(p, None if previous is None else previous.to_json()))
+
+
+_FIELDS = tuple(f.name for f in fields(Snapshot))
+
+
+def _typed(snap: Mapping[str, Any]) -> Snapshot:
+    """The frozen snapshot of the assembled JSON (keys a snapshot lacks stay None)."""
+    kw = {k: snap[k] for k in _FIELDS if k in snap}
+    if "data" in kw:
+        d = kw["data"]
+        kw["data"] = DataView(tuple(d["train"]), tuple(d["validation"]), d["train_samples"],
+                              d["validation_samples"], d["processing"], d["version"],
+                              dict(d["rejected"]))
+    for k in ("alarms", "alarm_history"):
+        if k in kw:
+            kw[k] = tuple(kw[k] or ())
+    return Snapshot(**kw)
+
+
+def _snapshot_json(p: SnapshotParts, previous: Mapping[str, Any] | None) -> dict[str, Any]:
     snap: dict[str, Any] = {"system": p.system, "state": p.state, "epoch": p.epoch,
                             "converged": False, "converged_at": None, "parameters": {},
                             "estimate_source": None, "discriminator": {}, "error": p.error,
@@ -84,12 +110,13 @@ def build_snapshot(p: SnapshotParts, previous: Mapping[str, Any] | None = None) 
         snap["modal"] = (modal_quantities(p.structure, means)
                          if means and all(m is not None for m in means) else None)
         snap["best"] = None if p.best is None else p.best.to_json()
-        snap["monitoring"] = p.monitor_view.get("summary")
-        snap["alarm_history"] = p.monitor_view["report"]["alarm_history"]
+        summary = p.monitor_view.summary
+        snap["monitoring"] = None if summary is None else summary.to_json()
+        snap["alarm_history"] = list(p.monitor_view.report.alarm_history)
     if p.best_error:
         snap["best_error"] = p.best_error
-    snap["alarms"] = [a for a in p.monitor_view["report"]["alarms"] if a["active"]]
-    snap["drift_status"] = drift_status(p.monitor_view["report"])
+    snap["alarms"] = [a for a in p.monitor_view.report.alarms if a["active"]]
+    snap["drift_status"] = drift_status(p.monitor_view.report)
     head_v, ens_v = p.verdicts
     pending = None
     if head_v is None and ens_v is None:
@@ -138,13 +165,13 @@ def _provisional(snap: Mapping[str, Any]) -> bool:
     return snap.get("ensemble_state") != "final"
 
 
-def drift_status(report: Mapping[str, Any]) -> dict[str, Any]:
+def drift_status(report: MonitorReport) -> dict[str, Any]:
     """Plain words on what the drift test can judge yet."""
-    rule = report.get("rule") or {}
+    rule = report.rule or {}
     need = rule.get("baseline_records")
-    ref = report.get("reference")
-    young = report.get("young_baseline") or {}
-    n = int(report.get("n_records") or 0)
+    ref = report.reference
+    young = report.young_baseline or {}
+    n = int(report.n_records or 0)
     if ref:
         return {"status": "monitoring", "baseline_records": ref.get("n_records"),
                 "message": f"CUSUM against a baseline of {ref.get('n_records')} records"}
@@ -201,13 +228,13 @@ def agreement(structure: Structure, snap: Mapping[str, Any], p: SnapshotParts) -
     return {"status": "differ", "z": z, "max_z": worst, "why": "; ".join(why)}
 
 
-def history_entry(snap: Mapping[str, Any]) -> dict[str, Any]:
+def history_entry(snap: Snapshot) -> HistoryPoint:
     """One point of the dashboard's traces: the headline and the ensemble with bands."""
-    return {"epoch": snap["epoch"], "time": snap["time"], "converged": snap.get("converged"),
-            "parameters": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                           for q, v in (snap.get("parameters") or {}).items()},
-            "estimate_source": snap.get("estimate_source"),
-            "ensemble": {q: {k: v.get(k) for k in ("mean", "std", "ci95")}
-                         for q, v in (snap.get("ensemble") or {}).items()},
-            "ensemble_state": snap.get("ensemble_state"),
-            "modal": snap.get("modal")}
+    return HistoryPoint(
+        epoch=snap.epoch, time=snap.time, converged=snap.converged,
+        parameters={q: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                    for q, v in (snap.parameters or {}).items()},
+        estimate_source=snap.estimate_source,
+        ensemble={q: {k: v.get(k) for k in ("mean", "std", "ci95")}
+                  for q, v in (snap.ensemble or {}).items()},
+        ensemble_state=snap.ensemble_state, modal=snap.modal)

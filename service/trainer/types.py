@@ -15,6 +15,8 @@ import numpy as np
 
 from siva_core import Processing, Recording
 
+from ..monitoring.monitor_values import HeadlineEstimate
+
 
 @dataclass(frozen=True)
 class DataSet:
@@ -180,3 +182,16 @@ def best_from(d: Any) -> Best | None:
                 refined=d.get("refined"), note=d.get("note"),
                 approach_III=d.get("approach_III"), n_candidates=d.get("n_candidates"),
                 seconds=d.get("seconds"), modal=d.get("modal"))
+
+
+def best_from_headline(h: HeadlineEstimate | None, epoch: int) -> Best | None:
+    """The monitor's headline as a :class:`Best` (``source = "records"``), from ``epoch``."""
+    if h is None or not h.parameters:
+        return None
+    params = {p: ParameterValue(float(v["mean"]), v.get("std"),
+                                None if not v.get("ci95") else (v["ci95"][0], v["ci95"][1]),
+                                v.get("n"))
+              for p, v in h.parameters.items() if v.get("mean") is not None}
+    return Best(params, int(epoch or 0), int(h.n_records or 0), float(h.time or time.time()),
+                tuple(h.records), "records", h.method or "", output_error=None, refined=True,
+                modal=h.modal)

@@ -49,6 +49,7 @@ from ..settings import Settings
 from ..storage.store import Store
 from .data import DataFeed, SystemDeleted
 from .factory import base_snapshot, default_trainer
+from .published import DriftReport, Snapshot
 from .lifecycle import Lifecycle
 from .monitoring import Monitoring
 from .phases import PhaseSteps
@@ -111,8 +112,8 @@ class SystemWorker(Lifecycle, PhaseSteps, Publishing):
         self._epoch_times: list[float] = []
         self._new_epochs = 0
         self._published_at = time.monotonic()
-        self._snapshot: dict[str, Any] = base_snapshot(name, self._state)
-        self._drift_report: dict[str, Any] = self._report()
+        self._snapshot: Snapshot = base_snapshot(name, self._state)
+        self._drift_report: DriftReport = self._report()
 
     # ------------------------------------------------------------------ compatibility
     @property
@@ -212,7 +213,7 @@ class SystemWorker(Lifecycle, PhaseSteps, Publishing):
             if not self.feed.ready or self.data is None:
                 self._state = ("waiting_for_data" if not self.feed.train_ids
                                else "waiting_for_validation")
-                if self._snapshot.get("state") != self._state:
+                if self._snapshot.state != self._state:
                     self._publish()
                 self._wake.wait(self.settings.idle_sleep_s)
                 self._wake.clear()

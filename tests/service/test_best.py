@@ -181,4 +181,4 @@ def test_refine_settings(tmp_path):
     off = SystemWorker("lin", st, Store(tmp_path), s)
     on = SystemWorker("lin", st, Store(tmp_path), Settings(data_dir=tmp_path))
     assert off._refiner is None and on._refiner is not None
-    assert off.snapshot().get("best") is None
+    assert off.snapshot().best is None

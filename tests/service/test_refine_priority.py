@@ -213,3 +213,55 @@ def test_a_waiting_reanchor_gives_way_to_its_systems_new_record_then_runs_at_the
         other_fit_done.set()
         r.stop(5.0)
         blocker.join(5)
+
+
+def test_a_waiting_validation_gives_way_to_its_systems_new_record(monkeypatch):
+    """Refiner: a validation queued behind other systems' work lets a record of its own
+    system be fitted first (the thread waiting for the validation's turn is the one that
+    fits the record; found with 16 systems: 37 of 90 records never monitored), then runs."""
+    import numpy as np
+
+    from service.trainer import refiner as refiner_mod
+    from service.trainer.types import DataSet, ValidationJob
+
+    events: list[str] = []
+    monkeypatch.setattr(refiner_mod, "validate",
+                        lambda structure, theta, records, proc, of: events.append(f"validate {of}"))
+    due = {"records": 0}
+
+    def step() -> bool:
+        if due["records"] == 0:
+            return False
+        due["records"] -= 1
+        events.append("fit")
+        return True
+
+    r = refiner_mod.Refiner("s", structure=None, on_best=lambda *a: None,
+                            on_anchor=lambda a: None, on_verdicts=lambda *a: None,
+                            on_error=lambda m: events.append(f"error {m}"),
+                            headline_theta=lambda: None, step=step)
+    job = ValidationJob(DataSet(1, 0, ("a",), ("b",), None), (), np.array([1.0]), None, (1,))
+    q = refiner_mod.REFINE_LOCK
+    other_done, other_started = threading.Event(), threading.Event()
+
+    def other_systems_anchor() -> None:
+        with q.hold(ANCHOR):
+            other_started.set()
+            other_done.wait(10)
+    blocker = threading.Thread(target=other_systems_anchor, daemon=True)
+    blocker.start()
+    other_started.wait(10)
+    r.start()
+    try:
+        r.submit_validation(job)
+        _until(lambda: any(k[0] == VALIDATION for k in q._waiting))  # the validation waits
+        due["records"] = 1
+        r.poke()                                                     # a record arrives
+        _until(lambda: events == ["fit"])     # only possible if the validation gave way
+        other_done.set()
+        _until(lambda: len(events) == 2)
+        assert events == ["fit", "validate headline"]
+    finally:
+        other_done.set()
+        r.stop(5.0)
+        blocker.join(5)

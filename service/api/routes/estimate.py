@@ -6,7 +6,6 @@ from typing import Any
 from fastapi import APIRouter, Depends, Query
 from starlette.concurrency import run_in_threadpool
 
-from ...trainer.estimate import estimate_view
 from ..auth import require_read_token, require_token
 from ..deps import ServiceDep, SystemDep
 from ..http_errors import READ_ERRORS, errors
@@ -20,7 +19,7 @@ router = APIRouter()
             dependencies=[Depends(require_read_token)])
 async def get_estimate(name: str, w: SystemDep, svc: ServiceDep) -> dict[str, Any]:
     """The latest published estimate (never waits for training)."""
-    return estimate_view(w.snapshot(), svc.counts(name))
+    return w.snapshot().to_json(svc.counts(name))
 
 
 @router.get("/v1/systems/{name}/drift", tags=["estimate"], response_model=DriftReport,
@@ -31,8 +30,7 @@ async def get_drift(name: str, w: SystemDep,
                     ) -> dict[str, Any]:
     """History of snapshots (recent means, intervals, modal quantities) and alarms."""
     report = await run_in_threadpool(w.drift_report)  # with Ray: fetched from the actor
-    hist = report["history"] if limit is None else report["history"][-limit:]
-    return {"system": name, **report, "history": hist}
+    return {"system": name, **report.to_json(history_limit=limit)}
 
 
 @router.post("/v1/systems/{name}/drift/reset", tags=["estimate"], response_model=DriftReport,
@@ -40,4 +38,4 @@ async def get_drift(name: str, w: SystemDep,
 async def reset_drift(name: str, w: SystemDep) -> dict[str, Any]:
     """Forget the drift reference and alarms (e.g. after a repair); history is kept."""
     report = await run_in_threadpool(w.reset_drift)
-    return {"system": name, **report}
+    return {"system": name, **report.to_json()}

@@ -7,7 +7,6 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from ...errors import NotFound
-from ...trainer.estimate import estimate_view
 from ..auth import require_read_token
 from ..csv_export import EXPORTS, export_csv
 from ..deps import ServiceDep, SystemDep
@@ -28,8 +27,9 @@ async def export(name: str, what: str, w: SystemDep, svc: ServiceDep) -> Respons
     if what not in EXPORTS:
         raise NotFound(f"export {what!r}: one of {', '.join(f'{e}.csv' for e in EXPORTS)}")
     units = w.structure.parameter_units()
-    est = estimate_view(w.snapshot(), svc.counts(name))
-    report = await run_in_threadpool(w.drift_report) if what != "estimates" else {}
+    est = w.snapshot().to_json(svc.counts(name))
+    report = ((await run_in_threadpool(w.drift_report)).to_json()
+              if what != "estimates" else {})
     text = export_csv(what, est, report, units)
     return Response(text, media_type="text/csv; charset=utf-8", headers={
         "Content-Disposition": f'attachment; filename="{name}-{what}.csv"'})

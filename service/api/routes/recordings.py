@@ -137,8 +137,8 @@ async def _multipart(request: Request) -> tuple[bytes, str | None, str | None, A
             responses=READ_ERRORS,
             dependencies=[Depends(require_read_token)])
 async def list_recordings(name: str, w: SystemDep, svc: ServiceDep) -> dict[str, Any]:
-    data = w.snapshot().get("data", {})
-    in_mem = set(data.get("train", [])) | set(data.get("validation", []))
+    data = w.snapshot().data
+    in_mem = set() if data is None else {*data.train, *data.validation}
     metas = svc.store.recordings(name)  # UnknownSystem: 404
     return {"system": name, "n_recordings": svc.counts(name),
             "recordings": [{**m.to_dict(), "in_memory": m.id in in_mem} for m in metas]}
@@ -149,9 +149,9 @@ async def list_recordings(name: str, w: SystemDep, svc: ServiceDep) -> dict[str,
             dependencies=[Depends(require_read_token)])
 async def get_recording(name: str, rid: str, w: SystemDep, svc: ServiceDep) -> dict[str, Any]:
     meta = svc.store.recording(name, rid)  # UnknownSystem, UnknownRecording: 404
-    data = w.snapshot().get("data", {})
+    data = w.snapshot().data
     return {**meta.to_dict(),
-            "in_memory": meta.id in set(data.get("train", [])) | set(data.get("validation", []))}
+            "in_memory": data is not None and meta.id in {*data.train, *data.validation}}
 
 
 @router.get("/v1/systems/{name}/recordings/{rid}/raw", tags=["recordings"],

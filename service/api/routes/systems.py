@@ -45,9 +45,9 @@ async def list_systems(svc: ServiceDep) -> dict[str, Any]:
             counts = svc.store.counts(name)
         except UnknownSystem:
             continue
-        out.append({"name": name, "state": snap.get("state"), "epoch": snap.get("epoch", 0),
-                    "converged": snap.get("converged", False), "n_recordings": counts,
-                    "active_alarms": [a["parameter"] for a in snap.get("alarms", [])]})
+        out.append({"name": name, "state": snap.state, "epoch": snap.epoch,
+                    "converged": snap.converged, "n_recordings": counts,
+                    "active_alarms": [a["parameter"] for a in snap.alarms]})
     for name, why in sorted(svc.broken.items()):
         out.append({"name": name, "state": "invalid_spec", "epoch": 0, "converged": False,
                     "n_recordings": svc.store.counts(name), "active_alarms": [], "error": why})
@@ -90,8 +90,8 @@ async def get_system(name: str, w: SystemDep, svc: ServiceDep) -> dict[str, Any]
     snap = w.snapshot()
     return {"name": name, "spec": svc.store.spec(name), "dofs": w.structure.dofs,
             "free_parameters": w.structure.free,
-            "parameter_units": w.structure.parameter_units(), "state": snap.get("state"),
-            "epoch": snap.get("epoch", 0), "converged": snap.get("converged", False),
+            "parameter_units": w.structure.parameter_units(), "state": snap.state,
+            "epoch": snap.epoch, "converged": snap.converged,
             "n_recordings": svc.counts(name)}
 
 
