@@ -358,15 +358,21 @@ def force_profiled_output_error(structure: Any, thetas: Any,
             cols = [(parts[1] - parts[2]) / (2 * h * s[:, None])]
             if fit_spread:
                 cols.append((parts[3] - parts[4]) / (2 * hs))
-            J = np.stack(cols, axis=-1)                          # (B, R, p)
-            JtJ = np.einsum("brp,brq->bpq", J, J)
-            Jtr = np.einsum("brp,br->bp", J, r0)
-            step = np.zeros((B, J.shape[-1]))
-            for b in np.flatnonzero(fine):
-                try:
-                    step[b] = np.linalg.lstsq(JtJ[b], Jtr[b], rcond=1e-12)[0]
-                except np.linalg.LinAlgError:
-                    fine[b] = False
+            if not fit_spread:  # the multiplier alone: a scalar step
+                g = cols[0]
+                gg = np.sum(g * g, axis=1)
+                with np.errstate(all="ignore"):
+                    step = np.where(gg > 0, np.sum(r0 * g, axis=1) / gg, 0.0)[:, None]
+            else:
+                J = np.stack(cols, axis=-1)                      # (B, R, 2)
+                JtJ = np.einsum("brp,brq->bpq", J, J)
+                Jtr = np.einsum("brp,br->bp", J, r0)
+                step = np.zeros((B, 2))
+                for b in np.flatnonzero(fine):
+                    try:
+                        step[b] = np.linalg.lstsq(JtJ[b], Jtr[b], rcond=1e-12)[0]
+                    except np.linalg.LinAlgError:
+                        fine[b] = False
             fine &= np.all(np.isfinite(step), axis=1)
             s = np.where(fine, np.clip(s - step[:, 0], 0.5, 2.0), s)
             if fit_spread:
