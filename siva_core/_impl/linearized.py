@@ -101,9 +101,9 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     """Linearise the output error of ``records`` at ``theta`` (see the module doc).
     ``fit_force_spread``: also profile out a change of each record's force spread
     (``adjusted_stage_force``; "auto": with the force scale, when
-    ``force_spread_identifiable``),
+    ``default_force_spread``: off unless enabled),
     the pulse's width between its few samples (docs/perf.md 6.3)."""
-    from .output_error import OutputErrorProblem, _state_derived, force_spread_identifiable
+    from .output_error import OutputErrorProblem, _state_derived, default_force_spread
     from .refine import _log_mask
     from .replicates import noise_replicates
 
@@ -125,7 +125,7 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     is_log = _log_mask(structure, free, theta, "auto")
     scale = np.where(theta != 0, np.abs(theta), 1.0)
     if fit_force_spread == "auto":
-        fit_force_spread = bool(fit_force_scale) and force_spread_identifiable(
+        fit_force_spread = bool(fit_force_scale) and default_force_spread(
             structure, theta, recs, prob.interp)
     n_fs = n_rec if fit_force_scale else 0
     n_sp = n_rec if fit_force_spread else 0

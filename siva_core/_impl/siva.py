@@ -174,7 +174,7 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
     """
     from .refine import displacement_mse, force_profiled_output_error, output_error
     from .refine import refine as _refine
-    from .output_error import force_spread_identifiable
+    from .output_error import default_force_spread
 
     st = structure
     names = st.free
@@ -199,10 +199,9 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         gains = [g for g in st.force_gains.values() if isinstance(g, str) and g in names]
         forced = all(r.has_force(st.dofs) for r in train)
         fit_scale = forced and not gains
-        fit_spread = fit_scale and force_spread_identifiable(st, theta_III, train)
-        # The pulse's spread too, where the top mode is sampled coarsely enough to feel it:
-        # where its few samples fall within it changes its width between them, which
-        # shifts dampings and stiffnesses (docs/perf.md 6.3, 6.4).
+        fit_spread = fit_scale and default_force_spread(st, theta_III, train)
+        # The pulse's spread too when enabled (``output_error.FIT_FORCE_SPREAD_BY_DEFAULT``,
+        # off: it fixed one structure and broke two, docs/perf.md 6.4) and identifiable.
         res = _refine(st, theta_III, train, processing, fit_force_scale=fit_scale,
                       fit_force_spread=fit_spread, bounds=(lo, hi))
         # judged by the cost the refinement minimised: with fitted force scales, start and
