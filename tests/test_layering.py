@@ -38,7 +38,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_physical_bounds.py": {
         "siva_core._impl.assessment": "the verdict on a stub result",
         "siva_core._impl.ensemble": "dropping a diverged epoch",
-        "siva_core._impl.siva": "moving candidates inside the bounds"},
+        "siva_core._impl.siva": "moving candidates inside the bounds",
+        "siva_core._impl.refine": "every candidate diverging"},
     "tests/test_diagnose_report_text.py": {
         "siva_core._impl.diagnose.report": "the report's sentences",
         "siva_core._impl.diagnose.signatures": "the damping reading",

@@ -53,6 +53,21 @@ def test_negative_damping_is_never_recommended(make_sdof, sdof_model):
     assert "outside the physical bounds" in (rec_best.note or "")
 
 
+def test_a_candidate_that_diverges_everywhere_is_not_refined(make_sdof, sdof_model, monkeypatch):
+    """Approach II's mean of a runaway softening spring (a 3-DOF chain, fresh seed) crashed
+    ``siva identify`` in the second refinement: every candidate diverging now leaves best
+    unrefined, with the reason, instead of raising."""
+    import siva_core._impl.refine as refine_mod
+
+    rec, truth = make_sdof(noise=0.002, seed=3)
+    cand = np.array([[truth[p] for p in sdof_model.free]])
+    monkeypatch.setattr(refine_mod, "displacement_mse",
+                        lambda st, c, *a, **k: np.full(len(c), np.inf))
+    out = recommend_best(sdof_model, cand, [rec], Processing())
+    assert not out.refined and out.std is None
+    assert "diverges" in (out.note or "")
+
+
 def test_a_diverged_epoch_leaves_the_ensemble():
     ens = Ensemble()
     ens.add(np.array([1.0, 2.0]), 1)

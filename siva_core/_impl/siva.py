@@ -192,7 +192,11 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
     timing["approach_III"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     best, best_std, note, oe, refined, res = theta_III.copy(), None, None, None, False, None
-    if refine:
+    if refine and not np.isfinite(mse).any():
+        # nothing to refine from (e.g. Approach II's mean of a softening spring that runs
+        # away): best stays the candidate, without interval, and says why
+        note = "every candidate's simulation diverges on the training records: not refined"
+    elif refine:
         # An impact's response scales with its impulse: with a force sensor and no
         # identified gain, one force multiplier per record is fitted as a nuisance
         # parameter so that sensor error is not absorbed by the structure's parameters.
