@@ -7,6 +7,7 @@ from pathlib import Path
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
+from ..files import fsync_dir
 from .channels import FORMAT_VERSION
 from .reader import _good_bytes, is_finished
 
@@ -58,13 +59,5 @@ def recover(path: str | Path, *, keep_partial: bool = True) -> Path:
     if keep_partial:
         os.replace(path, path.with_name(path.name + ".partial"))
     os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return path
-
-
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
