@@ -191,18 +191,13 @@ def _layer_of(module: str) -> int:
 
 
 def _runtime_imports(path: Path, module: str, known: set[str]) -> list[tuple[int, str, str]]:
-    """(line, imported service module, imported name or '') of every import that runs
-    (also inside functions; not under ``if TYPE_CHECKING``)."""
+    """(line, imported service module, imported name or '') of every import, also inside
+    functions and under ``if TYPE_CHECKING`` (a type-only import back into a module that
+    imports this one is still a circle for readers and checkers)."""
     tree = ast.parse(path.read_text(), str(path))
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    skip: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skip |= {id(n) for b in node.body for n in ast.walk(b)}
     out: list[tuple[int, str, str]] = []
     for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name, "") for a in node.names if a.name in known]
         elif isinstance(node, ast.ImportFrom):

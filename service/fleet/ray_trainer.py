@@ -5,15 +5,27 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from siva_core import Structure
 
 from ..errors import Unavailable
 from ..trainer import DriftReport, Snapshot, base_snapshot
 
-if TYPE_CHECKING:
-    from .ray_executor import RayExecutor
+
+class HostAccess(Protocol):
+    """What a handle needs of its executor (``RayExecutor``): the Ray module, the trainer
+    hosts, their reachability, the store and a restart.  A protocol, so this module does
+    not import the executor that imports it."""
+
+    ray: Any
+    store: Any
+
+    def host(self, host_id: str) -> Any: ...
+    def reachable(self, host_id: str) -> bool: ...
+    def unreachable_for(self, host_id: str) -> float | None: ...
+    def retry_start(self, handle: "RayTrainer") -> None: ...
+
 
 log = logging.getLogger("siva.service.ray")
 
@@ -32,7 +44,7 @@ RENOTIFY_AFTER_S = 5.0
 class RayTrainer:
     """The front's handle of one system trained in a trainer host (no call blocks a read)."""
 
-    def __init__(self, executor: "RayExecutor", name: str, structure: Structure,
+    def __init__(self, executor: HostAccess, name: str, structure: Structure,
                  host_id: str) -> None:
         self.executor = executor
         self.name = name
