@@ -38,6 +38,7 @@ def run(case_name: str, phase: float, amplitude: float, mode: str) -> dict:
     c0 = time.process_time()
     res = refine(st, case.theta(), [rec], proc, fit_force_scale=True,
                  fit_force_shift="delay" in mode, fit_force_spread="spread" in mode,
+                 fit_force_kick="kick" in mode,
                  uncertainty="gauss-newton")
     return {"names": list(st.free), "err": res.theta / case.theta() - 1,
             "scale": float(np.ravel(res.force_scale)[0]),
@@ -52,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phase", action="append", type=float)
     ap.add_argument("--amp", type=float)
     ap.add_argument("--mode", action="append", choices=["before", "delay", "spread",
-                                                        "delay+spread"],
+                                                        "delay+spread", "kick"],
                     help="nuisances fitted besides the multiplier (default: all four)")
     a = ap.parse_args(argv)
     cases = a.case or ["chain3_end_1k", "chain4_inner_disp"]

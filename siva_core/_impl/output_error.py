@@ -32,6 +32,11 @@ class _Record:
     substeps: int = 1
     state_rms: np.ndarray | None = None  # (2 n_dof,) RMS of processed q then v (scales)
     _staged: tuple[int, str, np.ndarray] | None = None
+    #: (T,) the hit's force samples on its DOF (``hit_dof``) when the record is one short
+    #: pulse, else None: the shape the kick's patterns are made of (``kick_basis``)
+    kick_pulse: np.ndarray | None = None
+    hit_dof: int = 0
+    _kick: tuple[int, str, np.ndarray] | None = None
 
     def staged(self, interp: str) -> np.ndarray | None:
         """The force on the RK4 stage grid, computed once per (substeps, interp)."""
@@ -40,6 +45,18 @@ class _Record:
         if self._staged is None or self._staged[:2] != (self.substeps, interp):
             self._staged = (self.substeps, interp, stage_force(self.force, self.substeps, interp))
         return self._staged[2]
+
+    def kick_basis(self, interp: str) -> np.ndarray:
+        """(rows, 2) the kick's two patterns on the RK4 stage grid: the pulse itself
+        (an impulse in units of the hit's) and its central difference (a doublet, in
+        samples): see ``force_kick_patterns``."""
+        if self.kick_pulse is None:
+            raise ValueError(f"{self.rec.name}: no single short pulse to kick with")
+        if self._kick is None or self._kick[:2] != (self.substeps, interp):
+            self._kick = (self.substeps, interp,
+                          stage_force(force_kick_patterns(self.kick_pulse), self.substeps,
+                                      interp))
+        return self._kick[2]
 
 
 @dataclass
@@ -115,7 +132,9 @@ class OutputErrorProblem:
                                   omega_h=omega_h, backend=use, interp=interp)
             state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
                                         np.sqrt(np.mean(meas.v ** 2, axis=0))])
-            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms))
+            pulse, hit = single_pulse(force)
+            prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms,
+                                    kick_pulse=pulse, hit_dof=hit))
         return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
@@ -142,16 +161,19 @@ class OutputErrorProblem:
     def record_residuals(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                          dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
                          record: _Record | None = None, force_shift: np.ndarray | None = None,
-                         force_spread: np.ndarray | None = None
+                         force_spread: np.ndarray | None = None,
+                         force_kick: np.ndarray | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
         """((B, T' * n_dof) normalised residuals of record ``k``, (B,) finite mask);
         ``record`` replaces the stored one (e.g. the same record with another force);
         ``force_shift`` (B,): delay of the force per set [samples]; ``force_spread`` (B,):
-        change of its spread [samples^2] (``adjusted_stage_force``)."""
+        change of its spread [samples^2] (``adjusted_stage_force``); ``force_kick``
+        (B, 2, n_dof): impulse and doublet added at the pulse per DOF (``_Record.kick_basis``)."""
         r = record or self.records[k]
         need = "".join(sorted({_QTY_ATTR[q] for q in r.quantities}))
         st, ok = self._processed(thetas, k, force_scale, dq0, dv0, record=r, need=need,
-                                 force_shift=force_shift, force_spread=force_spread)
+                                 force_shift=force_shift, force_spread=force_spread,
+                                 force_kick=force_kick)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
         return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
@@ -160,7 +182,8 @@ class OutputErrorProblem:
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
                    record: _Record | None = None, need: str = "qva",
                    force_shift: np.ndarray | None = None,
-                   force_spread: np.ndarray | None = None) -> tuple[States, np.ndarray]:
+                   force_spread: np.ndarray | None = None,
+                   force_kick: np.ndarray | None = None) -> tuple[States, np.ndarray]:
         """Batched: simulate record ``k`` (or ``record``) for all sets, run the chain once
         on (B, T, n) arrays (``Processing.apply_simulated``; only the ``need``ed
         quantities are processed).  Returns (States with (B, T', n) arrays, (B,) mask of
@@ -175,10 +198,22 @@ class OutputErrorProblem:
                 force = np.broadcast_to(force, (B,) + force.shape)
             staged = adjusted_stage_force(force, r.substeps, self.interp, force_shift,
                                           force_spread)
+        if force_kick is not None and force is not None and np.any(force_kick):
+            kick = np.asarray(force_kick, dtype=float)
+            B = kick.shape[0]
+            if force.ndim == 2:
+                force = np.broadcast_to(force, (B,) + force.shape)
+            basis = r.kick_basis(self.interp)
+            rows = np.flatnonzero(np.any(basis != 0, axis=1))   # the pulse's stage rows
+            lo, hi = int(rows[0]), int(rows[-1]) + 1
+            staged = np.array(np.broadcast_to(staged, (B,) + staged.shape[-2:]))
+            staged[:, lo:hi] += (kick[:, 0, None, :] * basis[None, lo:hi, 0, None]
+                                 + kick[:, 1, None, :] * basis[None, lo:hi, 1, None])
         sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
                        force_scale=force_scale, staged_force=staged)
-        q, v, a = sim.q, sim.v, sim.a
+        q, v, a = sim.q, sim.v, _sampled_force_acceleration(
+            self.structure, sim.a, force, staged, r.substeps, force_scale)
         ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
               & np.all(np.isfinite(a), axis=(1, 2)))
         if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
@@ -189,14 +224,16 @@ class OutputErrorProblem:
     def residuals(self, thetas: Any, force_scales: np.ndarray | None = None,
                   dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,
                   force_shifts: np.ndarray | None = None,
-                  force_spreads: np.ndarray | None = None) -> np.ndarray:
+                  force_spreads: np.ndarray | None = None,
+                  force_kicks: np.ndarray | None = None) -> np.ndarray:
         """(B, n_residuals) normalised residuals, NaN where a simulation diverged.  The sum of
         squares is the mean NMSE over records and DOFs (each DOF of each record divided by
         its measured RMS, so records and DOFs of different amplitude weigh the same).
         ``force_scales`` (B, n_records): optional per-record force multipliers;
         ``dq0``, ``dv0`` (B, n_records, n_dof): optional offsets of each initial state;
         ``force_shifts``, ``force_spreads`` (B, n_records): optional delay [samples] and
-        spread change [samples^2] of each record's force (``adjusted_stage_force``)."""
+        spread change [samples^2] of each record's force (``adjusted_stage_force``);
+        ``force_kicks`` (B, n_records, 2, n_dof): each record's kick (``record_residuals``)."""
         th = np.atleast_2d(np.asarray(thetas, dtype=float))
         B = th.shape[0]
         out = np.empty((B, self.n_residuals))
@@ -208,7 +245,9 @@ class OutputErrorProblem:
                                             force_shift=None if force_shifts is None
                                             else force_shifts[:, k],
                                             force_spread=None if force_spreads is None
-                                            else force_spreads[:, k])
+                                            else force_spreads[:, k],
+                                            force_kick=None if force_kicks is None
+                                            else force_kicks[:, k])
             size = r.target.size
             out[:, col:col + size] = res
             out[~ok, col:col + size] = np.nan
@@ -232,11 +271,48 @@ class OutputErrorProblem:
             meas = self.chain.apply(rec, self.structure.dofs)
             target = _extract(meas, r.quantities)
             force = None if r.force is None else r.force[:len(rec)]
+            pulse = None if r.kick_pulse is None else r.kick_pulse[:len(rec)]
             recs.append(_Record(rec, r.q0, r.v0, force, r.quantities, target,
                                 np.sqrt(np.mean(target ** 2, axis=0)), r.substeps,
-                                r.state_rms))
+                                r.state_rms, kick_pulse=pulse, hit_dof=r.hit_dof))
         return OutputErrorProblem(self.structure, recs, self.processing, self.backend,
                                   self.interp)
+
+
+#: the simulated acceleration at a sample takes the force *sample* there, not the model's
+#: continuous reading of it (docs/perf.md 6.5); False restores the reading (ablation)
+ACC_AT_FORCE_SAMPLES = True
+
+
+def _sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray | None,
+                                staged: np.ndarray | None, m: int,
+                                force_scale: np.ndarray | None) -> np.ndarray:
+    """(B, T, n) the simulated accelerations with the force term at each sample set to the
+    measured force sample (times the set's multiplier).
+
+    Why: an accelerometer sampled during a hammer pulse reads (F(t_i) - internal forces) / m
+    with F(t_i) the force sensor's sample at the same instant; the simulator's force there
+    is its continuous reading (the "moments" prefilter moves the samples by D2 F / 12, up to
+    1/6 of the peak on a 3-sample pulse; a fitted kick adds its patterns), which the state
+    needs but the instantaneous acceleration must not see.  The error sat on the few samples
+    of the pulse, spread by the chain's filters, and shifted a cubic stiffness by ~1 %
+    (chain hit on its end mass, 4 samples per pulse).  Only with numeric force gains and a
+    diagonal mass (the lumped models); otherwise unchanged."""
+    if (not ACC_AT_FORCE_SAMPLES or force is None or staged is None
+            or any(not isinstance(structure.force_gain(d), (int, float))
+                   for d in structure.dofs)):
+        return a
+    at_samples = staged[..., ::2 * m, :]
+    diff = np.asarray(force, dtype=float) - at_samples          # (T, n) or (B, T, n)
+    if not np.any(diff):
+        return a
+    gain = np.array([float(structure.force_gain(d)) / float(structure.mass[d])
+                     for d in structure.dofs])
+    corr = np.broadcast_to(diff * gain, a.shape)
+    if force_scale is not None:
+        corr = corr * np.broadcast_to(np.asarray(force_scale, float).ravel(), (a.shape[0],)
+                                      )[:, None, None]
+    return a + corr
 
 
 def _quantities(rec: Recording, dofs: Sequence[str], quantity: str | Sequence[str]) -> list[str]:
@@ -323,10 +399,107 @@ def force_spread_identifiable(structure: Any, theta: Any, records: Sequence[Reco
     return bool(2 * math.pi * float(f_hz.max()) * dt >= SPREAD_MIN_OMEGA_DT)
 
 
+#: a record's force is "one short pulse" (kickable) when its nonzero samples span at most
+#: this share of the record (the same 5 % that makes a record impulsive for the replicates)
+KICK_MAX_PULSE_SHARE = 0.05
+#: ... and at most this many samples (None: any).  No limit: noise-free, the reading of
+#: the pulse between its samples shifts estimates at every pulse length tried, 3-5
+#: samples by 0.3-10 %, 12.7 samples (LO-NO alpha, a 3-DOF chain's knl) by 0.3-0.5 %,
+#: and the kick removes it at all of them (docs/perf.md 6.5).  Set before the fresh
+#: coverage seeds 11000+.
+KICK_MAX_PULSE_SAMPLES: int | None = None
+#: ``refine``/``linearize``/``force_profiled_output_error`` fit the kick by default
+#: ("auto") where ``force_kick_applicable``; False: never (main's behaviour, ablation)
+FIT_FORCE_KICK_BY_DEFAULT = True
+
+
+def single_pulse(force: np.ndarray | None) -> tuple[np.ndarray | None, int]:
+    """((T,) the force samples of the hit's DOF, that DOF's index) when ``force`` (T, n) is
+    one pulse spanning at most ``KICK_MAX_PULSE_SHARE`` of the record (a hammer hit),
+    else (None, 0): several hits, a continuous excitation, or no force."""
+    if force is None or force.ndim != 2 or not np.all(np.isfinite(force)):
+        return None, 0
+    rows = np.flatnonzero(np.any(force != 0, axis=1))
+    if rows.size == 0:
+        return None, 0
+    span = int(rows[-1] - rows[0] + 1)
+    if span > KICK_MAX_PULSE_SHARE * len(force):
+        return None, 0
+    hit = int(np.argmax(np.abs(force.sum(axis=0))))
+    if force[:, hit].sum() == 0:
+        return None, 0
+    return force[:, hit].copy(), hit
+
+
+def pulse_samples(pulse: np.ndarray) -> int:
+    """Samples from the first to the last nonzero one of a pulse."""
+    rows = np.flatnonzero(pulse)
+    return int(rows[-1] - rows[0] + 1) if rows.size else 0
+
+
+def force_kick_patterns(pulse: np.ndarray) -> np.ndarray:
+    """(T, 2): the hit's own samples and their central difference / 2 (per sample).
+
+    Why these two: for a pulse short against the modes, everything its unknown shape
+    between the samples does to the rest of the record is the structure's state just after
+    it, 2 numbers per DOF.  Added at DOF d, a multiple a_d of the pulse moves that DOF's
+    velocity (an impulse, relative to the hit's), a multiple b_d of its derivative moves
+    its displacement (a doublet, b_d in samples: a delay of the hit by tau samples is
+    b_hit = -tau); over all DOFs they span every state (for a linear structure exactly,
+    whenever the pulse's spectrum is not zero at a mode)."""
+    p = np.asarray(pulse, dtype=float)
+    d = np.zeros_like(p)
+    d[1:-1] = 0.5 * (p[2:] - p[:-2])
+    return np.stack([p, d], axis=1)
+
+
+def force_kick_applicable(structure: Any, records: Sequence[Any]) -> bool:
+    """Whether ``refine``, ``linearize`` and ``force_profiled_output_error`` fit a kick
+    ("auto"), given the prepared records (``OutputErrorProblem.records``): every record is
+    one hammer hit (``single_pulse``) of at most ``KICK_MAX_PULSE_SAMPLES`` samples, and
+    every DOF has a measured response channel (the free decay after the hit then shows
+    each mode at the sensors, so the state the kick sets is observable and the parameters
+    stay identifiable from the decay: the kick costs only what the force said about the
+    modes' excitation ratios at the hit DOF)."""
+    if not records:
+        return False
+    for r in records:
+        if r.kick_pulse is None:
+            return False
+        if KICK_MAX_PULSE_SAMPLES is not None and pulse_samples(r.kick_pulse) > KICK_MAX_PULSE_SAMPLES:
+            return False
+        if any(all(r.rec.get(q, d) is None for q in ("disp", "vel", "acc"))
+               for d in structure.dofs):
+            return False
+    return True
+
+
+def default_force_kick(structure: Any, records: Sequence[Any]) -> bool:
+    """The "auto" choice: ``FIT_FORCE_KICK_BY_DEFAULT`` and ``force_kick_applicable``."""
+    return FIT_FORCE_KICK_BY_DEFAULT and force_kick_applicable(structure, records)
+
+
+def kick_mask(record: _Record, n_dof: int, with_scale: bool) -> np.ndarray:
+    """(2, n_dof) which kick components are fitted for ``record``: none without a single
+    pulse; else all but the impulse on the hit DOF when the force multiplier is fitted
+    (that one is the multiplier)."""
+    m = np.zeros((2, n_dof), dtype=bool)
+    if record.kick_pulse is not None:
+        m[:] = True
+        if with_scale:
+            m[0, record.hit_dof] = False
+    return m
+
+
+#: bounds of the kick's components: impulse (share of the hit's) and doublet [samples]
+KICK_BOUNDS = ((-1.0, 1.0), (-3.0, 3.0))
+
+
 def force_profiled_output_error(structure: Any, thetas: Any,
                                 records: Recording | Sequence[Recording],
                                 processing: Processing | None = None, *, iterations: int = 4,
-                                fit_spread: bool = False, **kw: Any) -> np.ndarray:
+                                fit_spread: bool = False, fit_kick: bool | str = "auto",
+                                **kw: Any) -> np.ndarray:
     """(B,) ``output_error`` with one force multiplier per record fitted for each parameter
     set: the cost the refinement minimises when it fits force scales (``refine(...,
     fit_force_scale=True)``), so a refined estimate and its start are compared on the same
@@ -341,15 +514,22 @@ def force_profiled_output_error(structure: Any, thetas: Any,
     Per record, ``iterations`` Gauss-Newton steps on the multiplier (and spread)
     (central-difference slopes; one batched simulation per step), the multiplier kept within
     [0.5, 2]; each record contributes the smallest cost met, multiplier 1 (spread 0)
-    included (so never more than ``output_error``).  Records without force keep multiplier 1."""
+    included (so never more than ``output_error``).  Records without force keep multiplier 1.
+    ``fit_kick``: the kick (``force_kick_patterns``) is profiled with the multiplier, as
+    ``refine(..., fit_force_kick=True)`` fits it; "auto": ``force_kick_applicable``."""
     th = np.atleast_2d(np.asarray(thetas, dtype=float))
     prob = OutputErrorProblem.build(structure, records, processing, theta_ref=th, **kw)
+    if fit_kick == "auto":
+        fit_kick = default_force_kick(structure, prob.records)
     B, h, hs = th.shape[0], 1e-3, 1e-3
     total = np.zeros(B)
     for k, r in enumerate(prob.records):
         if r.force is None:
             res, ok = prob.record_residuals(th, k)
             total += np.where(ok, np.sum(res ** 2, axis=1), np.inf)
+            continue
+        if fit_kick and r.kick_pulse is not None:
+            total += _profiled_with_kick(prob, th, k, iterations, fit_spread)
             continue
         s = np.ones(B)
         w = np.zeros(B)
@@ -393,6 +573,62 @@ def force_profiled_output_error(structure: Any, thetas: Any,
         total += best
     total[~np.isfinite(total)] = np.inf
     return total
+
+
+def _profiled_with_kick(prob: OutputErrorProblem, th: np.ndarray, k: int, iterations: int,
+                        fit_spread: bool) -> np.ndarray:
+    """(B,) record ``k``'s smallest cost met over Gauss-Newton steps on its multiplier,
+    (spread) and kick, central-difference slopes from one batched simulation per step."""
+    r = prob.records[k]
+    B, n = th.shape[0], prob.structure.n_dof
+    mask = kick_mask(r, n, with_scale=True)
+    comps = np.argwhere(mask)                      # (p_kick, 2): (kind, dof)
+    p = 1 + int(fit_spread) + len(comps)
+    lo = np.array([0.5] + ([-0.5] if fit_spread else []) + [KICK_BOUNDS[c[0]][0] for c in comps])
+    hi = np.array([2.0] + ([0.5] if fit_spread else []) + [KICK_BOUNDS[c[0]][1] for c in comps])
+    z = np.zeros((B, p))
+    z[:, 0] = 1.0
+    hz = np.full(p, 1e-3)
+    best = np.full(B, np.inf)
+
+    def split(Z: np.ndarray) -> dict[str, np.ndarray]:
+        kick = np.zeros((len(Z), 2, n))
+        j0 = 1 + int(fit_spread)
+        for j, (kind, d) in enumerate(comps):
+            kick[:, kind, d] = Z[:, j0 + j]
+        return {"force_scale": Z[:, 0], "force_spread": Z[:, 1] if fit_spread else None,
+                "force_kick": kick}
+
+    # slopes at the start only (then chord steps, one simulation per step): the response
+    # is nearly linear in the kick, and 2 p more simulations per step would be the cost
+    pinv: list[np.ndarray | None] = [None] * B
+    for it in range(iterations + 1):
+        first = it == 0
+        Z = (np.concatenate([z] + [z + hz[j] * np.eye(p)[j] for j in range(p)]
+                            + [z - hz[j] * np.eye(p)[j] for j in range(p)]) if first else z)
+        n_sets = 2 * p + 1 if first else 1
+        kw = split(Z)
+        res, ok = prob.record_residuals(np.concatenate([th] * n_sets), k,
+                                        kw["force_scale"], force_spread=kw["force_spread"],
+                                        force_kick=kw["force_kick"])
+        res = res.reshape(n_sets, B, -1)
+        ok = ok.reshape(n_sets, B)
+        r0 = res[0]
+        best = np.minimum(best, np.where(ok[0], np.sum(r0 ** 2, axis=1), np.inf))
+        if it == iterations:
+            break
+        if first:
+            J = np.stack([(res[1 + j] - res[1 + p + j]) / (2 * hz[j]) for j in range(p)],
+                         axis=-1)
+            for b in np.flatnonzero(np.all(ok, axis=0)):
+                pinv[b] = np.linalg.pinv(np.where(np.isfinite(J[b]), J[b], 0.0), rcond=1e-10)
+        fine = ok[0] & np.array([P is not None for P in pinv])
+        step = np.zeros((B, p))
+        for b in np.flatnonzero(fine):
+            step[b] = pinv[b] @ r0[b]
+        fine &= np.all(np.isfinite(step), axis=1)
+        z = np.where(fine[:, None], np.clip(z - step, lo, hi), z)
+    return best
 
 
 def displacement_mse(structure: Any, thetas: Any, records: Recording | Sequence[Recording],

@@ -34,8 +34,9 @@ from scipy.optimize import least_squares
 
 from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
-from .output_error import (OutputErrorProblem, _state_derived, displacement_mse,  # noqa: F401
-                           force_profiled_output_error, output_error)
+from .output_error import (KICK_BOUNDS, OutputErrorProblem, _state_derived,  # noqa: F401
+                           default_force_kick, displacement_mse, force_profiled_output_error,
+                           kick_mask, output_error)
 from .processing import Processing
 from .recording import Recording
 from .simulate import OMEGA_H
@@ -79,6 +80,7 @@ class RefineResult:
     force_scale: np.ndarray | None = None   # per record, when fit_force_scale
     force_shift: np.ndarray | None = None   # per record [samples], when fit_force_shift
     force_spread: np.ndarray | None = None  # per record [samples^2], when fit_force_spread
+    force_kick: np.ndarray | None = None    # (n_records, 2, n_dof), when the kick is fitted
     stages: list[dict[str, Any]] = field(default_factory=list)
     std_gauss_newton: np.ndarray | None = None
     uncertainty: str = "bootstrap"
@@ -107,6 +109,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
            fit_force_shift: bool = False, fit_force_spread: bool = False,
+           fit_force_kick: bool | str = "auto",
            bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
@@ -149,6 +152,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``fit_force_spread``: also fit a change of the force's spread (second moment) per
     record, within +-0.5 dt^2 (``simulate.grid.adjusted_stage_force``): the pulse's width
     between its samples, which its few samples leave undetermined.
+    ``fit_force_kick``: also fit, per record that is one short hammer pulse, a kick at the
+    pulse: an impulse (but on the hit DOF when the multiplier is fitted) and a doublet on
+    every DOF (``output_error.force_kick_patterns``), i.e. the structure's state just after
+    the pulse, which a pulse of few samples leaves undetermined (docs/perf.md 6.5).
+    "auto": with ``fit_force_scale``, where ``output_error.force_kick_applicable``.
     ``fit_initial``: also fit offsets of each record's initial displacement and velocity
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
@@ -204,7 +212,16 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     n_sh = n_rec if fit_force_shift else 0
     n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = len(free) + n_fs + n_sh + n_sp + n_ic
+    if fit_force_kick == "auto":
+        fit_force_kick = fit_force_scale and default_force_kick(structure, full.records)
+    if fit_force_kick and not any(r.kick_pulse is not None for r in full.records):
+        raise ValueError("fit_force_kick needs a record whose force is one short pulse")
+    # (record, kind, dof) of each fitted kick component
+    kick_idx = (np.argwhere(np.stack([kick_mask(r, n_dof, fit_force_scale)
+                                      for r in full.records]))
+                if fit_force_kick else np.zeros((0, 3), dtype=int))
+    n_kk = len(kick_idx)
+    n_x = len(free) + n_fs + n_sh + n_sp + n_ic + n_kk
     if fit_force_scale:
         lower = np.concatenate([lower, np.full(n_rec, math.log(0.5))])
         upper = np.concatenate([upper, np.full(n_rec, math.log(2.0))])
@@ -220,6 +237,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         ic_scale = np.maximum(np.concatenate([r.state_rms for r in full.records]), 1e-300)
         lower = np.concatenate([lower, np.full(n_ic, -np.inf)])
         upper = np.concatenate([upper, np.full(n_ic, np.inf)])
+    if n_kk:
+        lower = np.concatenate([lower, [KICK_BOUNDS[kind][0] for _, kind, _ in kick_idx]])
+        upper = np.concatenate([upper, [KICK_BOUNDS[kind][1] for _, kind, _ in kick_idx]])
+    i_kk = len(free) + n_fs + n_sh + n_sp + n_ic
 
     def to_theta(X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         Xp = X[:, :len(free)]
@@ -233,8 +254,13 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
             i0 = len(free) + n_fs + n_sh
             extra["force_spreads"] = X[:, i0:i0 + n_sp]
         if fit_initial:
-            ic = (X[:, len(free) + n_fs + n_sh + n_sp:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, len(free) + n_fs + n_sh + n_sp:i_kk] * ic_scale).reshape(len(X), n_rec, 2,
+                                                                               n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
+        if n_kk:
+            kick = np.zeros((len(X), n_rec, 2, n_dof))
+            kick[:, kick_idx[:, 0], kick_idx[:, 1], kick_idx[:, 2]] = X[:, i_kk:]
+            extra["force_kicks"] = kick
         return th, extra
 
     x = np.zeros(n_x)
@@ -273,6 +299,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         dth = np.concatenate([dth, np.ones(n_sp)])
     if fit_initial:
         dth = np.concatenate([dth, ic_scale])
+    if n_kk:
+        dth = np.concatenate([dth, np.ones(n_kk)])
     # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
     # (inverting J^T J in theta units would mix 1e7 and 1e0 scales and lose the small ones)
     r = res.fun
@@ -315,6 +343,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                                      else extra["force_shifts"][0]),
                         force_spread=(None if "force_spreads" not in extra
                                       else extra["force_spreads"][0]),
+                        force_kick=(None if "force_kicks" not in extra
+                                    else extra["force_kicks"][0]),
                         std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
                         jac=res.jac, residuals=r, dtheta_dx=dth)
 
