@@ -1,8 +1,7 @@
 """What the kick and the sampled-force acceleration cost ``siva identify`` (issue 20).
 
 Runs ``bench_identify_time``'s cases (output-error SIVA only) twice each in one process,
-alternating: as main (``output_error.FIT_FORCE_KICK_BY_DEFAULT`` and
-``ACC_AT_FORCE_SAMPLES`` off) and as now (both on), and prints the CPU seconds
+alternating: as main (``set_pulse_reading(False, False)``) and as now (both on), and prints the CPU seconds
 (``time.process_time``), their ratio and the largest relative error of Approach II and
 ``best`` where the truth is known.
 
@@ -21,13 +20,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_identify_time import _case  # noqa: E402
 
-from siva_core import Siva, warmup  # noqa: E402
-from siva_core._impl import output_error as oe  # noqa: E402
+from siva_core import Siva, set_pulse_reading, warmup  # noqa: E402
 
 
 def _fit(name: str, on: bool) -> tuple[float, str]:
-    oe.FIT_FORCE_KICK_BY_DEFAULT = on
-    oe.ACC_AT_FORCE_SAMPLES = on
+    set_pulse_reading(kick=on, acc_at_force_samples=on)
     st, train, val, truth = _case(name)
     c0 = time.process_time()
     with warnings.catch_warnings():

@@ -34,6 +34,7 @@ Identification
     :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
     :func:`force_profiled_output_error`, :func:`displacement_mse`, :class:`OutputErrorProblem`,
+    :func:`set_pulse_reading` (ablation: the kick at a hammer pulse, docs/perf.md 6.5),
     :func:`linearize` -> :class:`Linearization` (the output error linearised at an anchor),
     :func:`settle` -> :class:`Settled` (the anchor moved to the output-error optimum first);
     baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
@@ -81,7 +82,7 @@ _export("training", "SivaSettings", "SivaTrainer")
 _export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
 _export("convergence", "ConvergenceMonitor")
 _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
-        "OutputErrorProblem", "force_profiled_output_error")
+        "OutputErrorProblem", "force_profiled_output_error", "set_pulse_reading")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
 _export("linearized", "linearize", "Linearization", "settle", "Settled", "gauss_newton_step")
@@ -130,7 +131,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
                                   check_recording, mode_frequencies, preflight, resample_to)
     from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
-                               force_profiled_output_error, output_error, refine)
+                               force_profiled_output_error, output_error, refine,
+                               set_pulse_reading)
     from ._impl.report import write_report
     from ._impl.simulate import (Simulation, adjusted_stage_force, auto_substeps,
                                  set_measured_force_interp, simulate, stage_force, warmup)

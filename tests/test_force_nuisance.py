@@ -141,18 +141,17 @@ def test_accelerometers_read_the_force_sample_during_the_pulse() -> None:
     noise-free accelerometer record of a 4-sample hit (kick fitted) that cuts the error of
     the stiffnesses and the cubic spring >= 2x (knl 0.40 -> 0.11 %); the dampings keep
     errors of ~1-3 % on this 6x-sampled record either way (docs/perf.md 6.5)."""
-    from siva_core._impl import output_error as oe
+    from siva_core import set_pulse_reading
 
     st, truth, rec = _exact_hit(0.25, sensors="acc", samples=4.0)
     errs = {}
     for on in (False, True):
-        old = oe.ACC_AT_FORCE_SAMPLES
-        oe.ACC_AT_FORCE_SAMPLES = on
+        old = set_pulse_reading(acc_at_force_samples=on)
         try:
             res = refine(st, truth, [rec], Processing(), fit_force_scale=True,
                          uncertainty="gauss-newton")
         finally:
-            oe.ACC_AT_FORCE_SAMPLES = old
+            set_pulse_reading(*old)
         errs[on] = np.abs(res.theta / truth - 1)[[0, 2, 4]]  # k1, k2, knl
     assert errs[True].max() < 0.5 * errs[False].max(), errs
     assert errs[True].max() < 2e-3, errs

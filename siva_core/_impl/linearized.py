@@ -106,8 +106,8 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     the pulse's width between its few samples (docs/perf.md 6.3).  ``fit_force_kick``:
     also profile out each short pulse's kick (``refine``'s ``fit_force_kick``; "auto":
     with the force scale, where ``force_kick_applicable``)."""
-    from .output_error import (OutputErrorProblem, _state_derived, default_force_spread,
-                               default_force_kick, kick_mask)
+    from .output_error import (KICK_STEPS, OutputErrorProblem, _state_derived,
+                               default_force_kick, default_force_spread, kick_mask)
     from .refine import _log_mask
     from .replicates import noise_replicates
 
@@ -169,27 +169,27 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     # a strongly nonlinear response depends on the impulse nonlinearly, so projecting out
     # a linearised force scale far from its optimum would leave a residual that moves theta
     base = np.zeros(n_x)
-    Jn = None
-    for _ in range(4 if n_x > n else 0):
-        if Jn is not None and n_kk:
-            # with a kick: the first slopes are kept (chord steps, one simulation each):
-            # the response is nearly linear in the kick and the multiplier's slope barely
-            # moves within a step, and 2n more slopes per step cost twice the linearisation
-            Rn = evaluate(base[None])
-        else:
-            Xn = np.repeat(base[None], n_x - n + 1, axis=0)
-            Xn[1:, n:] += np.eye(n_x - n) * fd_step
-            Rn = evaluate(Xn)
+    n_q = n_x - n - n_kk   # the nuisance without the kick
+    # with a kick: first the others alone (as without it), then ``KICK_STEPS`` steps on
+    # all: a joint step from a multiplier far off overshoots into a kicked minimum that
+    # is not the best (``force_profiled_output_error``)
+    plan = ([n_q] * 4 + [n_q + n_kk] * KICK_STEPS) if n_kk else [n_x - n] * (4 if n_x > n else 0)
+    settled = False  # the nuisance without the kick has converged
+    for n_new in plan:
+        if n_new == 0 or (settled and n_new == n_q and n_kk):
+            continue
+        Xn = np.repeat(base[None], n_new + 1, axis=0)
+        Xn[1:, n:n + n_new] += np.eye(n_new) * fd_step
+        Rn = evaluate(Xn)
         if not np.all(np.isfinite(Rn)):
             break
-        if Jn is None or not n_kk:
-            Jn = (Rn[1:] - Rn[0]).T / fd_step
+        Jn = (Rn[1:] - Rn[0]).T / fd_step
         step = -np.linalg.lstsq(Jn, Rn[0], rcond=None)[0]
-        base[n:] += step
-        # (a kick is linear in its patterns up to the structure's nonlinearity: a step of
-        # 1e-6 of the hit's impulse or of a sample is converged)
-        if np.max(np.abs(step)) < (1e-6 if n_kk else 1e-9):
-            break
+        base[n:n + n_new] += step
+        if np.max(np.abs(step)) < 1e-9:
+            if n_new == n_x - n:
+                break
+            settled = True
     X = np.repeat(base[None], n_x + 1, axis=0)
     X[1:] += np.eye(n_x) * fd_step
     R = evaluate(X)

@@ -36,7 +36,7 @@ from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
 from .output_error import (KICK_BOUNDS, OutputErrorProblem, _state_derived,  # noqa: F401
                            default_force_kick, displacement_mse, force_profiled_output_error,
-                           kick_mask, output_error)
+                           kick_mask, output_error, set_pulse_reading)
 from .processing import Processing
 from .recording import Recording
 from .simulate import OMEGA_H
@@ -522,4 +522,4 @@ def _pinv_sym(A: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["output_error", "force_profiled_output_error", "displacement_mse", "refine",
-           "RefineResult", "OutputErrorProblem"]
+           "RefineResult", "OutputErrorProblem", "set_pulse_reading"]
