@@ -82,7 +82,8 @@ _export("training", "SivaSettings", "SivaTrainer")
 _export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
 _export("convergence", "ConvergenceMonitor")
 _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
-        "OutputErrorProblem", "force_profiled_output_error", "set_pulse_reading")
+        "OutputErrorProblem", "force_profiled_output_error")
+_export("pulse_kick", "set_pulse_reading")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
 _export("linearized", "linearize", "Linearization", "settle", "Settled", "gauss_newton_step")
@@ -131,8 +132,8 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
                                   check_recording, mode_frequencies, preflight, resample_to)
     from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
-                               force_profiled_output_error, output_error, refine,
-                               set_pulse_reading)
+                               force_profiled_output_error, output_error, refine)
+    from ._impl.pulse_kick import set_pulse_reading
     from ._impl.report import write_report
     from ._impl.simulate import (Simulation, adjusted_stage_force, auto_substeps,
                                  set_measured_force_interp, simulate, stage_force, warmup)

@@ -106,8 +106,8 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     the pulse's width between its few samples (docs/perf.md 6.3).  ``fit_force_kick``:
     also profile out each short pulse's kick (``refine``'s ``fit_force_kick``; "auto":
     with the force scale, where ``force_kick_applicable``)."""
-    from .output_error import (KICK_STEPS, OutputErrorProblem, _state_derived,
-                               default_force_kick, default_force_spread, kick_mask)
+    from .output_error import OutputErrorProblem, _state_derived, default_force_spread
+    from .pulse_kick import KICK_STEPS, default_force_kick, kick_mask
     from .refine import _log_mask
     from .replicates import noise_replicates
 

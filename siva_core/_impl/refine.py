@@ -34,9 +34,9 @@ from scipy.optimize import least_squares
 
 from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
-from .output_error import (KICK_BOUNDS, OutputErrorProblem, _state_derived,  # noqa: F401
-                           default_force_kick, displacement_mse, force_profiled_output_error,
-                           kick_mask, output_error, set_pulse_reading)
+from .output_error import (OutputErrorProblem, _state_derived, displacement_mse,  # noqa: F401
+                           force_profiled_output_error, output_error)
+from .pulse_kick import KICK_BOUNDS, default_force_kick, kick_mask
 from .processing import Processing
 from .recording import Recording
 from .simulate import OMEGA_H
@@ -522,4 +522,4 @@ def _pinv_sym(A: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["output_error", "force_profiled_output_error", "displacement_mse", "refine",
-           "RefineResult", "OutputErrorProblem", "set_pulse_reading"]
+           "RefineResult", "OutputErrorProblem"]
