@@ -34,11 +34,12 @@ def _case():
     return sdof, train, Processing.auto(train, sdof.dofs)
 
 
-def _fit(kind: str, estimate: float, leader_cost: float, sdof, train, proc) -> Candidate:
+def _fit(kind: str, estimate: float, leader_cost: float, sdof, train, proc,
+         leader: Candidate | None = None) -> Candidate:
     c = Candidate(EFFECTS[kind], PLACE, {}, estimate=estimate)
     settings = DiagnoseSettings(fit_nfev=20)
     fit_candidate(c, sdof, sdof.vector(NOMINAL), train, proc, AMP, settings, 1.0,
-                  math.inf, leader_cost)
+                  math.inf, leader_cost, leader)
     return c
 
 
@@ -53,8 +54,11 @@ def test_a_loser_far_above_the_leader_stops_and_the_winner_runs_unchanged():
     assert cut.stopped and "stopped early" in cut.note
     assert cut.fit_time_s < free.fit_time_s
     assert cut.train_cost > 10 * winner.train_cost  # still a clear loser
+    # with the leader itself, it is judged on the growing horizons too: stops sooner
+    sooner = _fit("quadratic_damper", 1.0, winner.train_cost, sdof, train, proc, winner)
+    assert sooner.stopped and sooner.train_cost > 10 * winner.train_cost
     # the winner fitted after a leader it beats: the rule never fires, bit-identical fit
-    again = _fit("cubic_spring", 0.5 * K3, free.train_cost, sdof, train, proc)
+    again = _fit("cubic_spring", 0.5 * K3, free.train_cost, sdof, train, proc, free)
     assert not again.stopped
     assert np.array_equal(again.theta, winner.theta)
 
@@ -65,10 +69,10 @@ def test_the_stop_rule_needs_a_leader_and_the_full_records():
     assert cannot_win(0.01, DiagnoseSettings(stop_ratio=math.inf)) is None
     stop = cannot_win(0.01, settings)
     assert stop is not None
-    assert not stop(0, False, 5, 1.0)       # a short horizon: never judged
-    assert not stop(3, True, 1, 1.0)        # too early in the full-record stage
-    assert stop(3, True, settings.stop_after, 1.0)
-    assert not stop(3, True, 9, 0.05)       # within stop_ratio of the leader
+    assert not stop(0, False, 5, 1.0, None)  # a horizon, no leader given: not judged
+    assert not stop(3, True, 1, 1.0, None)  # too early in the full-record stage
+    assert stop(3, True, settings.stop_after, 1.0, None)
+    assert not stop(3, True, 9, 0.05, None)  # within stop_ratio of the leader
 
 
 def test_refine_with_a_stop_that_never_fires_is_unchanged():
@@ -81,6 +85,6 @@ def test_refine_with_a_stop_that_never_fires_is_unchanged():
     b = refine(sdof, th0, train, proc, max_nfev=10, uncertainty="gauss-newton",
                stop=lambda *_: False)
     c = refine(sdof, th0, train, proc, max_nfev=10, uncertainty="gauss-newton",
-               stop=lambda stage, last, it, cost: it >= 1)
+               stop=lambda stage, last, it, cost, prob: it >= 1)
     assert np.array_equal(a.theta, b.theta) and not a.stopped and not b.stopped
     assert c.stopped and c.nfev < a.nfev

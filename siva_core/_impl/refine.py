@@ -113,7 +113,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
            uncertainty: str = "bootstrap", n_boot: int = 400,
-           stop: Callable[[int, bool, int, float], bool] | None = None) -> RefineResult:
+           stop: Callable[[int, bool, int, float, OutputErrorProblem], bool] | None = None
+           ) -> RefineResult:
     """Output-error refinement from theta0 (e.g. SIVA's Approach III).
 
     Minimises the residuals of ``output_error`` with ``least_squares`` (TRF, bounds from the
@@ -155,10 +156,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
     recorded by accelerometers: its starting state is only known through integration).
-    ``stop``: called after every iteration as ``stop(stage, last, iteration, cost)`` (the
-    stage's index, whether it is the full-record stage, the iteration within it, the cost
-    on that stage's records); True ends the refinement there (``stopped``; the remaining
-    stages are skipped).  A caller comparing fits cuts short one that cannot win; without
+    ``stop``: called after every iteration as ``stop(stage, last, iteration, cost,
+    problem)`` (the stage's index, whether it is the full-record stage, the iteration
+    within it, the cost on that stage's records, that stage's problem); True ends the
+    refinement there (``stopped``; the remaining stages are skipped).  A caller comparing fits cuts short one that cannot win; without
     ``stop`` nothing changes (the same iterations, bit for bit).
     """
     t_start = time.perf_counter()
@@ -261,7 +262,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         else:
             prob = full.head([max(16, int(round(frac * len(r.target)))) for r in full.records])
         budget = max(5, max_nfev) if last else max(5, max_nfev // 4)
-        halt = None if stop is None else _stage_stop(stop, stage, last)
+        halt = None if stop is None else _stage_stop(stop, stage, last, prob)
         res = _solve(prob, to_theta, x, lower, upper, budget, fd_step, ftol,
                      xtol if last else max(xtol, 1e-6), gtol, verbose, halt)
         nfev += res.nfev
@@ -455,13 +456,13 @@ def _crossings(x: np.ndarray, level: float = 0.1) -> np.ndarray:
     return np.cumsum(out)
 
 
-def _stage_stop(stop: Callable[[int, bool, int, float], bool], stage: int, last: bool
-                ) -> Callable[[Any], None]:
+def _stage_stop(stop: Callable[[int, bool, int, float, OutputErrorProblem], bool],
+                stage: int, last: bool, prob: OutputErrorProblem) -> Callable[[Any], None]:
     """``least_squares``' callback for one stage of ``refine`` (scipy stops the solver
     when it raises StopIteration; the argument must be named ``intermediate_result``)."""
     def halt(intermediate_result: Any) -> None:
         if stop(stage, last, int(intermediate_result.nit),
-                2.0 * float(intermediate_result.cost)):
+                2.0 * float(intermediate_result.cost), prob):
             raise StopIteration
     return halt
 

@@ -165,32 +165,76 @@ def scan_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     c.scan_cost, c.scan_theta = best, th0
 
 
-def cannot_win(leader_cost: float, settings: DiagnoseSettings
-               ) -> Callable[[int, bool, int, float], bool] | None:
-    """``refine``'s ``stop`` for a candidate fitted after a leader of train cost
-    ``leader_cost``: True once the fit has run ``settings.stop_after`` iterations on the
-    full records and its cost is still above ``settings.stop_ratio`` x the leader's.
+StopRule = Callable[[int, bool, int, float, Any], bool]
 
-    Why it is safe: by the full-record stage the growing horizons have brought the fit
-    into its basin, where the remaining iterations improve the cost by a small factor,
+
+class _HeadCosts:
+    """The leader's train cost on the leading parts of the records a candidate's growing
+    horizons fit (one short simulation per horizon, memoised)."""
+
+    def __init__(self, leader: Candidate, train: Sequence[Recording], proc: Processing
+                 ) -> None:
+        self.leader, self.train, self.proc = leader, list(train), proc
+        self._full: Any = None
+        self._cost: dict[tuple[int, ...], float] = {}
+
+    def cost(self, prob: Any) -> float:
+        from ..refine import OutputErrorProblem
+
+        key = tuple(len(r.target) for r in prob.records)
+        if key not in self._cost:
+            try:
+                if self._full is None:
+                    self._full = OutputErrorProblem.build(
+                        self.leader.structure, self.train, self.proc,
+                        theta_ref=self.leader.theta[None])
+                head = self._full.head(list(key))
+                self._cost[key] = float(head.cost(self.leader.theta[None])[0])
+            except Exception:  # noqa: BLE001 - no comparison on this horizon
+                self._cost[key] = math.nan
+        return self._cost[key]
+
+
+def cannot_win(leader_cost: float, settings: DiagnoseSettings,
+               leader: Candidate | None = None, train: Sequence[Recording] | None = None,
+               proc: Processing | None = None) -> StopRule | None:
+    """``refine``'s ``stop`` for a candidate fitted after a leader of train cost
+    ``leader_cost``: True once the fit has run ``settings.stop_after`` iterations of a
+    stage and its cost there is still above ``settings.stop_ratio`` x the leader's on the
+    same records -- on the full records its train cost; on a growing horizon (from the
+    second on, with the structural ``leader`` and its ``train`` records given) the
+    leader's cost on that leading part, which the candidate has just been fitted to and
+    the leader not (the comparison favours the candidate).
+
+    Why it is safe: the remaining iterations and horizons improve a fit by a small factor,
     not by the ``stop_ratio`` / (1/``separation``) = 7.5 x it would need to rival the
-    leader (measured: the losers of the LO-NO cases sit 20-150 x above the leader and
-    move by < 10 % after their first full-record iterations).  None when there is no
-    leader yet (or the rule is off)."""
+    leader (measured: the losers of the LO-NO cases sit 20-150 x above the leader).  None
+    when there is no leader yet (or the rule is off)."""
     if not (np.isfinite(leader_cost) and leader_cost > 0
             and np.isfinite(settings.stop_ratio)):
         return None
     limit = settings.stop_ratio * leader_cost
+    heads = (_HeadCosts(leader, train, proc) if leader is not None and train is not None
+             and proc is not None and leader.category == "structure"
+             and leader.structure is not None and leader.theta is not None else None)
 
-    def stop(stage: int, last: bool, iteration: int, cost: float) -> bool:
-        return last and iteration >= settings.stop_after and cost > limit
+    def stop(stage: int, last: bool, iteration: int, cost: float, prob: Any = None) -> bool:
+        if iteration < settings.stop_after:
+            return False
+        if last:
+            return cost > limit
+        if heads is None or prob is None or stage < 1:
+            return False  # the first horizon (2.5 cycles) is never judged
+        ref = heads.cost(prob)
+        return bool(np.isfinite(ref) and ref > 0 and cost > settings.stop_ratio * ref)
     return stop
 
 
 def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float,
-                  nominal_cost: float = math.inf, leader_cost: float = math.inf) -> None:
+                  nominal_cost: float = math.inf, leader_cost: float = math.inf,
+                  leader: Candidate | None = None) -> None:
     """Fit nominal + candidate by output error on the train records (in place).
 
     Starts: the nominal fit with the new magnitude at a few multiples of the score test's
@@ -202,8 +246,9 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     a scan start taken whenever it costs least led refine to a worse basin (quadratic
     damper c2 = 2.2 instead of 3.96), so it is a fallback, not a rival.
 
-    ``leader_cost``: the best train cost fitted so far in this stage; a fit that cannot
-    come near it is cut short (``cannot_win``; ``c.stopped``)."""
+    ``leader_cost``: the best train cost fitted so far in this stage (``leader``: the
+    structural candidate with the best one); a fit that cannot come near it is cut short
+    (``cannot_win``; ``c.stopped``)."""
     from ..refine import output_error, refine
 
     t0 = time.perf_counter()
@@ -251,7 +296,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             best_cost, th0 = float(costs[k]), batch[k]
     if th0 is None:
         raise ValueError("every start diverges")
-    stop = cannot_win(leader_cost, settings)
+    stop = cannot_win(leader_cost, settings, leader, train, proc)
     res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev,
                  uncertainty=FAST, stop=stop)
     c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
@@ -289,8 +334,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 
 
 def continue_fit(c: Candidate, train: Sequence[Recording], proc: Processing,
-                 nfev: int, stop: Callable[[int, bool, int, float], bool] | None = None
-                 ) -> None:
+                 nfev: int, stop: StopRule | None = None) -> None:
     """More evaluations for a finalist of the first, cheaper round of fits: refine from
     its fit on the full records (no horizons: it is in its basin already); kept when the
     train cost improves.  ``stop``: ``cannot_win`` against the leader (a finalist kept

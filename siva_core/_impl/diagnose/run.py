@@ -138,6 +138,11 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         return min((c.train_cost for c in chosen if c.fitted and not c.stopped
                     and np.isfinite(c.train_cost)), default=math.inf)
 
+    def leader() -> Candidate | None:  # the best structural fit so far
+        return min((c for c in chosen if c.fitted and not c.stopped
+                    and c.category == "structure" and np.isfinite(c.train_cost)),
+                   key=lambda c: c.train_cost, default=None)
+
     def fit_first(c: Candidate) -> bool:
         try:
             if c.category == "sensor":
@@ -145,7 +150,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             else:
                 c.amplitudes = nom.amplitudes[c.loc.between]
                 fit_candidate(c, structure, theta, train, proc, c.amplitudes, first,
-                              nom.force_scale, fit.train_cost, leader_cost())
+                              nom.force_scale, fit.train_cost, leader_cost(), leader())
             return True
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
