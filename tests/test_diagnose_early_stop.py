@@ -7,12 +7,11 @@ import math
 
 import numpy as np
 
-from siva_core import EFFECTS, Processing, Structure
-from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location,
-                                      synthetic_impacts, with_effect)
+from siva_core import (EFFECTS, DiagnoseSettings, Processing, Structure, refine,
+                       synthetic_impacts, with_effect)
+from siva_core._impl.diagnose import Candidate, Location
 from siva_core._impl.diagnose.fitting import cannot_win, fit_candidate
 from siva_core._impl.effects import Amplitudes
-from siva_core._impl.refine import refine
 
 SDOF = {"name": "sdof", "dofs": ["x"], "mass": {"x": 1.0},
         "elements": [{"kind": "damper", "between": ["x", "ground"], "params": {"c": "c"}},
