@@ -141,20 +141,11 @@ class SivaTrainer:
             bt = self.train.draw(B, self.rng)
             bv = val.draw(B, self.rng)
             theta = self.generator(self._noise(B))
-            # discriminator step: real validation accelerations vs the model's at the same states
+            # D: real validation accelerations vs the model's at the same states; the
+            # generator: fool the updated D on validation, match training accelerations (eq. 4)
             fake_val = bv.model_acc(st, theta)
-            real_logit = self.discriminator(self._real_features[bv.idx])
-            fake_logit = self.discriminator(self._features(bv.q, bv.v, fake_val.detach()))
-            bce = F.binary_cross_entropy_with_logits
-            loss_d = (bce(real_logit, self._label(real_logit, 1.0))
-                      + bce(fake_logit, self._label(fake_logit, 0.0)))
-            self.opt_d.zero_grad(set_to_none=True)
-            loss_d.backward()
-            self.opt_d.step()
-            # generator step: fool the updated D on validation, match training accelerations (eq. 4)
-            with self._d_frozen():
-                logit = self.discriminator(self._features(bv.q, bv.v, fake_val))
-            loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
+            loss_d, loss_adv = self._adversarial_step(self._real_features[bv.idx],
+                                                      self._features(bv.q, bv.v, fake_val))
             loss_mse = ((bt.model_acc(st, theta) - bt.a) / sa).pow(2).mean()
             loss_p = loss_adv + s.gamma * loss_mse
             self.opt_g.zero_grad(set_to_none=True)
@@ -236,19 +227,8 @@ class SivaTrainer:
             loss_adv = torch.zeros(())
             if ph.val is not None:
                 idx = torch.randint(0, ph.val.n, (B,), generator=self.rng)
-                real = ph.val.features(idx, None)
-                fake = ph.val.features(idx, x)
-                real_logit = self.discriminator(real)
-                fake_logit = self.discriminator(fake.detach())
-                bce = F.binary_cross_entropy_with_logits
-                loss_d = (bce(real_logit, self._label(real_logit, 1.0))
-                          + bce(fake_logit, self._label(fake_logit, 0.0)))
-                self.opt_d.zero_grad(set_to_none=True)
-                loss_d.backward()
-                self.opt_d.step()
-                with self._d_frozen():
-                    logit = self.discriminator(fake)
-                loss_adv = F.binary_cross_entropy_with_logits(logit, self._label(logit, 1.0))
+                loss_d, loss_adv = self._adversarial_step(ph.val.features(idx, None),
+                                                          ph.val.features(idx, x))
             loss_p = loss_adv + s.gamma * loss_fit
             self.opt_g.zero_grad(set_to_none=True)
             loss_p.backward()
@@ -262,6 +242,23 @@ class SivaTrainer:
         if harvested:
             self.oe_targets_.append(ph.lin.to_theta(target))
         return EpochLog(e, float(sums[0]), float(sums[1]), float(sums[2]), theta_epoch, conv)
+
+    def _adversarial_step(self, real: torch.Tensor, fake: torch.Tensor
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+        """D's step on ``real`` vs ``fake`` features (paper eq. 2), then the generator's
+        adversarial loss on ``fake`` against the updated D, its weights frozen (eq. 4):
+        (loss_d, loss_adv)."""
+        real_logit = self.discriminator(real)
+        fake_logit = self.discriminator(fake.detach())
+        bce = F.binary_cross_entropy_with_logits
+        loss_d = (bce(real_logit, self._label(real_logit, 1.0))
+                  + bce(fake_logit, self._label(fake_logit, 0.0)))
+        self.opt_d.zero_grad(set_to_none=True)
+        loss_d.backward()
+        self.opt_d.step()
+        with self._d_frozen():
+            logit = self.discriminator(fake)
+        return loss_d, bce(logit, self._label(logit, 1.0))
 
     def _label(self, logit: torch.Tensor, value: float) -> torch.Tensor:
         """A constant BCE target like ``logit`` (reused: the same few shapes every step;
