@@ -12,23 +12,21 @@ import dataclasses
 import math
 import sys
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..ensemble import normal_summary
 from ..recording import Recording
 from ..refine import NUMERICAL_REL_STD
-from ..progress import Eta
+from ..progress import Eta, Progress
 from ..structure import Structure
 from ..training import SivaSettings, SivaTrainer
 from .identification import Identification
 from .metrics import baseline_estimates, fit_metrics
-from .output_error_phase import output_error_phase
+from .output_error_training import train_output_error_phase
 from .processing_choice import choose_processing
 from .recommend import recommend_best, rerefine
-
-Progress = Callable[[str], None]
 
 
 def _stderr(msg: str) -> None:
@@ -158,8 +156,8 @@ class Siva:
         if settings.fit_target == "output":
             t0 = time.perf_counter()
             trainer.settings = settings
-            output_error_phase(trainer, st, settings, best, train, val, proc, notes,
-                               self.progress, self.progress_every)
+            train_output_error_phase(trainer, st, settings, best, train, val, proc, notes,
+                                     self.progress, self.progress_every)
             timing["training_output_error"] = time.perf_counter() - t0
 
         # --- Approach I and II

@@ -3,23 +3,22 @@ processing chain, linearised at ``best`` (see linearized.py), until converged; t
 Approach II harvest of that phase."""
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from ..processing import Processing
-from ..progress import Eta
+from ..progress import Eta, Progress
 from ..recording import Recording
 from ..structure import Structure
 from ..training import SivaSettings, SivaTrainer
 
-Progress = Callable[[str], None]
 
-
-def output_error_phase(trainer: SivaTrainer, structure: Structure, settings: SivaSettings,
-                       anchor: np.ndarray, train: Sequence[Recording],
-                       val: Sequence[Recording], proc: Processing, notes: list[str],
-                       progress: Progress | None, progress_every: int) -> None:
+def train_output_error_phase(trainer: SivaTrainer, structure: Structure,
+                             settings: SivaSettings, anchor: np.ndarray,
+                             train: Sequence[Recording], val: Sequence[Recording],
+                             proc: Processing, notes: list[str],
+                             progress: Progress | None, progress_every: int) -> None:
     """Continue training on the output error linearised at ``anchor`` until converged,
     then harvest the Approach II ensemble (see linearized.py)."""
     from ..linearized import linearize
