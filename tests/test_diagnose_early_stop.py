@@ -10,7 +10,8 @@ import numpy as np
 from siva_core import (EFFECTS, DiagnoseSettings, Processing, Structure, refine,
                        synthetic_impacts, with_effect)
 from siva_core._impl.diagnose import Candidate, Location
-from siva_core._impl.diagnose.fitting import cannot_win, fit_candidate
+from siva_core._impl.diagnose.early_stop import cannot_win
+from siva_core._impl.diagnose.fitting import fit_candidate
 from siva_core._impl.effects import Amplitudes
 
 SDOF = {"name": "sdof", "dofs": ["x"], "mass": {"x": 1.0},

@@ -15,8 +15,8 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .elimination import without_first
-from .fitting import (bootstrap_intervals, cannot_win, continue_fit, fit_candidate,
-                      scan_candidate)
+from .early_stop import cannot_win
+from .fitting import bootstrap_intervals, continue_fit, fit_candidate, scan_candidate
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate, Diagnosis
@@ -189,7 +189,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         judge(c)
 
     # the likely leader first (strongest screening evidence; sensor faults last): the
-    # fits after it that cannot come near it stop early (``fitting.cannot_win``).  Not
+    # fits after it that cannot come near it stop early (``early_stop.cannot_win``).  Not
     # the scan cost: on the cubic damper LO-NO example every scan sits within 8 % of the
     # nominal cost and ranks the true law fourth; the screen ranks it first.
     order = sorted(chosen, key=lambda c: (c.category == "sensor", -_strength(c)))
