@@ -27,7 +27,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -85,6 +85,7 @@ class RefineResult:
     std_gauss_newton: np.ndarray | None = None
     uncertainty: str = "bootstrap"
     block_length: int = 1
+    stopped: bool = False  # ended by ``stop`` (a loser's fit cut short), not converged
     jac: np.ndarray | None = field(default=None, repr=False)
     residuals: np.ndarray | None = field(default=None, repr=False)
     dtheta_dx: np.ndarray | None = field(default=None, repr=False)
@@ -114,7 +115,9 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
-           uncertainty: str = "bootstrap", n_boot: int = 400) -> RefineResult:
+           uncertainty: str = "bootstrap", n_boot: int = 400,
+           stop: Callable[[int, bool, int, float, OutputErrorProblem], bool] | None = None
+           ) -> RefineResult:
     """Output-error refinement from theta0 (e.g. SIVA's Approach III).
 
     Minimises the residuals of ``output_error`` with ``least_squares`` (TRF, bounds from the
@@ -161,6 +164,11 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
     recorded by accelerometers: its starting state is only known through integration).
+    ``stop``: called after every iteration as ``stop(stage, last, iteration, cost,
+    problem)`` (the stage's index, whether it is the full-record stage, the iteration
+    within it, the cost on that stage's records, that stage's problem); True ends the
+    refinement there (``stopped``; the remaining stages are skipped).  A caller comparing fits cuts short one that cannot win; without
+    ``stop`` nothing changes (the same iterations, bit for bit).
     """
     t_start = time.perf_counter()
     theta0 = np.asarray(theta0, dtype=float).ravel()
@@ -270,6 +278,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     fractions = _horizons(full, horizons, to_theta, x, n_x)
     nfev = njev = 0
     res = None
+    stopped = False
     prob = full
     stages = []
     for stage, frac in enumerate(fractions):
@@ -279,12 +288,17 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         else:
             prob = full.head([max(16, int(round(frac * len(r.target)))) for r in full.records])
         budget = max(5, max_nfev) if last else max(5, max_nfev // 4)
+        halt = None if stop is None else _stage_stop(stop, stage, last, prob)
         res = _solve(prob, to_theta, x, lower, upper, budget, fd_step, ftol,
-                     xtol if last else max(xtol, 1e-6), gtol, verbose)
+                     xtol if last else max(xtol, 1e-6), gtol, verbose, halt)
         nfev += res.nfev
         njev += res.njev or 0
         x = res.x
         stages.append({"fraction": frac, "nfev": int(res.nfev), "cost": float(2 * res.cost)})
+        if res.status == -2:  # ``stop`` said so: the remaining stages are skipped
+            stopped = True
+            stages[-1]["stopped"] = True
+            break
     assert res is not None
     th, extra = to_theta(res.x[None])
     theta = th[0]
@@ -346,7 +360,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                         force_kick=(None if "force_kicks" not in extra
                                     else extra["force_kicks"][0]),
                         std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
-                        jac=res.jac, residuals=r, dtheta_dx=dth)
+                        stopped=stopped, jac=res.jac, residuals=r, dtheta_dx=dth)
 
 
 def _wider(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
@@ -472,9 +486,20 @@ def _crossings(x: np.ndarray, level: float = 0.1) -> np.ndarray:
     return np.cumsum(out)
 
 
+def _stage_stop(stop: Callable[[int, bool, int, float, OutputErrorProblem], bool],
+                stage: int, last: bool, prob: OutputErrorProblem) -> Callable[[Any], None]:
+    """``least_squares``' callback for one stage of ``refine`` (scipy stops the solver
+    when it raises StopIteration; the argument must be named ``intermediate_result``)."""
+    def halt(intermediate_result: Any) -> None:
+        if stop(stage, last, int(intermediate_result.nit),
+                2.0 * float(intermediate_result.cost), prob):
+            raise StopIteration
+    return halt
+
+
 def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.ndarray,
            upper: np.ndarray, max_nfev: int, fd_step: float, ftol: float, xtol: float,
-           gtol: float, verbose: int) -> Any:
+           gtol: float, verbose: int, callback: Callable[[Any], None] | None = None) -> Any:
     n = x0.size
 
     def evaluate(X: np.ndarray) -> np.ndarray:
@@ -509,9 +534,10 @@ def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.nd
         raise ValueError("refine: the simulation diverges at the start (non-finite residuals)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
+        kw = {} if callback is None else {"callback": callback}  # scipy >= 1.16
         return least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf",
                              x_scale=1.0, max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol,
-                             verbose=verbose)
+                             verbose=verbose, **kw)
 
 
 def _pinv_sym(A: np.ndarray) -> np.ndarray:
