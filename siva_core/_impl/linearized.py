@@ -107,7 +107,7 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     also profile out each short pulse's kick (``refine``'s ``fit_force_kick``; "auto":
     with the force scale, where ``force_kick_applicable``)."""
     from .output_error import OutputErrorProblem, _state_derived, default_force_spread
-    from .pulse_kick import KICK_STEPS, default_force_kick, kick_mask
+    from .pulse_kick import KICK_STEP_TOL, KICK_STEPS, default_force_kick, kick_mask
     from .refine import _log_mask
     from .replicates import noise_replicates
 
@@ -186,6 +186,8 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         Jn = (Rn[1:] - Rn[0]).T / fd_step
         step = -np.linalg.lstsq(Jn, Rn[0], rcond=None)[0]
         base[n:n + n_new] += step
+        if n_kk and n_new == n_x - n and np.max(np.abs(step)) < KICK_STEP_TOL:
+            break
         if np.max(np.abs(step)) < 1e-9:
             if n_new == n_x - n:
                 break

@@ -13,8 +13,9 @@ from .recording import Recording
 from .simulate import OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force, simulate, stage_force
 from .simulate import grid as _grid
 from .simulate.grid import adjusted_stage_force
-from .pulse_kick import (KICK_BOUNDS, KICK_STEPS, default_force_kick, force_kick_patterns,
-                         kick_mask, sampled_force_acceleration, single_pulse)
+from .pulse_kick import (KICK_BOUNDS, KICK_STEP_TOL, KICK_STEPS, default_force_kick,
+                         force_kick_patterns, kick_mask, sampled_force_acceleration,
+                         single_pulse)
 #: the name tests use for the accelerations at the force samples
 _sampled_force_acceleration = sampled_force_acceleration
 
@@ -477,8 +478,9 @@ def _profiled_with_kick(prob: OutputErrorProblem, th: np.ndarray, k: int, iterat
     # joint step overshoots into a kicked minimum that is not the best (a 3 % force error
     # on LO-NO: cost 1e-3 instead of 0)
     q = 1 + int(fit_spread)
+    last = False  # the joint steps have converged: one more evaluation, for the cost there
     for it in range(iterations + KICK_STEPS + 1):
-        cols = range(q) if it < iterations else range(p)
+        cols = range(0) if last else range(q) if it < iterations else range(p)
         Z = np.concatenate([z] + [z + hz[j] * np.eye(p)[j] for j in cols]
                            + [z - hz[j] * np.eye(p)[j] for j in cols])
         m = len(cols)
@@ -490,7 +492,7 @@ def _profiled_with_kick(prob: OutputErrorProblem, th: np.ndarray, k: int, iterat
         ok = ok.reshape(2 * m + 1, B)
         r0 = res[0]
         best = np.minimum(best, np.where(ok[0], np.sum(r0 ** 2, axis=1), np.inf))
-        if it == iterations + KICK_STEPS:
+        if it == iterations + KICK_STEPS or last:
             break
         J = np.stack([(res[1 + j] - res[1 + m + j]) / (2 * hz[j]) for j in range(m)], axis=-1)
         fine = np.all(ok, axis=0)
@@ -500,6 +502,7 @@ def _profiled_with_kick(prob: OutputErrorProblem, th: np.ndarray, k: int, iterat
             step[b, :m] = np.linalg.lstsq(Jb, r0[b], rcond=1e-10)[0]
         fine &= np.all(np.isfinite(step), axis=1)
         z = np.where(fine[:, None], np.clip(z - step, lo, hi), z)
+        last = it >= iterations and bool(np.all(np.abs(step[fine]) < KICK_STEP_TOL))
     return best
 
 
