@@ -122,12 +122,13 @@ def kick_mask(record: Any, n_dof: int, with_scale: bool) -> np.ndarray:
 KICK_BOUNDS = ((-1.0, 1.0), (-3.0, 3.0))
 #: at most this many Gauss-Newton steps on the kick (with the multiplier) after the
 #: multiplier's own steps, in ``force_profiled_output_error`` and ``linearize``, fewer when
-#: a step moves no component by ``KICK_STEP_TOL``: near the multiplier's optimum the
-#: response is nearly linear in the kick (one step), but from an anchor 20 % off
+#: a step moves no component by ``KICK_STEP_TOL`` (of the hit's impulse, or samples):
+#: near the multiplier's optimum the response is nearly linear in the kick (one step),
+#: but from an anchor 20 % off
 #: (``settle``) one step left the profiled cost too rough to accept a descent step
 #: (was 1 in the coverage run of docs/perf.md 6.5)
 KICK_STEPS = 4
-KICK_STEP_TOL = 1e-6
+KICK_STEP_TOL = 1e-4
 
 
 #: the simulated acceleration at a sample takes the force *sample* there, not the model's
