@@ -52,7 +52,8 @@ def test_a_loser_far_above_the_leader_stops_and_the_winner_runs_unchanged():
     assert free.train_cost > 10 * winner.train_cost  # it does lose by the stop ratio
     cut = _fit("quadratic_damper", 1.0, winner.train_cost, sdof, train, proc)
     assert cut.stopped and "stopped early" in cut.note
-    assert cut.fit_time_s < free.fit_time_s
+    # (no wall-time comparison: tests never depend on the machine's load; the saving
+    # is measured in benchmarks/diagnose_before_after.sh)
     assert cut.train_cost > 10 * winner.train_cost  # still a clear loser
     # with the leader itself, it is judged on the growing horizons too: stops sooner
     sooner = _fit("quadratic_damper", 1.0, winner.train_cost, sdof, train, proc, winner)
