@@ -12,7 +12,8 @@ import pytest
 from siva_core import (OutputErrorProblem, Processing, Recording, Structure, displacement_mse,
                        force_profiled_output_error, output_error, refine, simulate,
                        simulated_recording)
-from siva_core._impl import output_error as refine_mod  # monkeypatched: private behaviour
+# monkeypatched: private behaviour (the module whose ``simulate`` the residuals call)
+from siva_core._impl.output_error import problem as refine_mod
 from siva_core._impl.output_error import _sampled_force_acceleration  # noqa: E402
 
 DUFFING_TRUTH = np.array([0.5, 4000.0, 300.0, 3e8])
