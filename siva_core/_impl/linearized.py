@@ -4,7 +4,7 @@ Why: an equation-error loss (model acceleration at the processed, *measured* sta
 biased by the processing chain (band-pass, integration, high-pass, decimation distort
 amplitude and phase; for a nonlinear term ``H[q^3] != H[q]^3``), and no amount of training
 removes that.  The output error is not: each record is simulated with the model from its
-measured force and passed through the same chain as the measurement (``refine.py``).
+measured force and passed through the same chain as the measurement (``refine``).
 Simulating every generator sample at every step would cost ~14 ms per parameter set and
 record; instead the processed simulation is linearised around an anchor theta_a (one
 batched simulation of n+1 sets, plus the nuisance columns):

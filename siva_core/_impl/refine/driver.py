@@ -85,8 +85,9 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``stop``: called after every iteration as ``stop(stage, last, iteration, cost,
     problem)`` (the stage's index, whether it is the full-record stage, the iteration
     within it, the cost on that stage's records, that stage's problem); True ends the
-    refinement there (``stopped``; the remaining stages are skipped).  A caller comparing fits cuts short one that cannot win; without
-    ``stop`` nothing changes (the same iterations, bit for bit).
+    refinement there (``stopped``; the remaining stages are skipped).  A caller comparing
+    fits cuts short one that cannot win; without ``stop`` nothing changes (the same
+    iterations, bit for bit).
     """
     t_start = time.perf_counter()
     theta0 = np.asarray(theta0, dtype=float).ravel()

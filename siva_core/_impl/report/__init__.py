@@ -16,7 +16,7 @@
 (f) ``cwt_<k>.png`` - complex-Morlet CWT (maximum 1) of measured vs best-simulated.
 
 Simulations go through the same processing chain as the measurement
-(:class:`~siva_core._impl.refine.OutputErrorProblem`), so what is compared is like with like
+(:class:`~siva_core._impl.output_error.OutputErrorProblem`), so what is compared is like with like
 (the chain's own distortion appears on both sides).  Raw recordings are taken from
 ``est.train_recordings_`` / ``est.val_recordings_`` or the ``train=``/``val=`` arguments;
 without them the processed states are simulated as records of their own (noted in the page).

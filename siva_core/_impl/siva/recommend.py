@@ -78,8 +78,9 @@ def recommend_best(structure: Structure, candidates: Any, train: Sequence[Record
         forced = all(r.has_force(st.dofs) for r in train)
         fit_scale = forced and not gains
         fit_spread = fit_scale and default_force_spread(st, theta_III, train)
-        # The pulse's spread too when enabled (``output_error.FIT_FORCE_SPREAD_BY_DEFAULT``,
-        # off: it fixed one structure and broke two, docs/perf.md 6.4) and identifiable.
+        # The pulse's spread too when enabled
+        # (``output_error.spread.FIT_FORCE_SPREAD_BY_DEFAULT``, off: it fixed one structure
+        # and broke two, docs/perf.md 6.4) and identifiable.
         res = _refine(st, theta_III, train, processing, fit_force_scale=fit_scale,
                       fit_force_spread=fit_spread, bounds=(lo, hi))
         # judged by the cost the refinement minimised: with fitted force scales, start and
