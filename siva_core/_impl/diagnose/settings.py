@@ -77,6 +77,9 @@ class DiagnoseSettings:
         tentatively is named with a second one only when together they close at least
         this share of the gap (measured: a wrong pair built that way closed 0.77, right
         pairs close 0.99+).
+    nominal_poor: a nominal fit leaving more than this share of its train records' energy
+        (train cost) is fitted again in the widest band (``band.fit_nominal_in_band``): a
+        band that cuts a mode leaves the nominal unable to follow its own records.
     max_effects: most effects named at once (added greedily while each one is significant
         on the validation records).
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
@@ -112,6 +115,7 @@ class DiagnoseSettings:
     kind_check_noise: float = 3.0
     backward: bool = True
     tentative_closure: float = 0.8
+    nominal_poor: float = 0.1
     max_effects: int = 2
     sensors: bool = True
     effects: Sequence[str] | None = None
