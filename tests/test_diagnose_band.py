@@ -6,7 +6,7 @@ import numpy as np
 
 from siva_core import Processing, Structure
 from siva_core._impl.diagnose import DiagnoseSettings, synthetic_impacts
-from siva_core._impl.diagnose.band import cut_modes, fit_nominal_in_band
+from siva_core._impl.diagnose.band import EDGE, cut_modes, fit_nominal_in_band
 
 CHAIN2 = {"name": "chain2", "dofs": ["a", "b"], "mass": {"a": 1.0, "b": 1.0},
           "elements": [{"kind": "spring", "between": ["a", "ground"], "params": {"k": "k1"}},
@@ -49,9 +49,28 @@ def test_a_band_that_cuts_a_mode_is_widened_before_the_nominal_fit():
                              decimate_to=None, notch=())
     train = recs[:2]
     proc, fit = fit_nominal_in_band(st, train, recs, narrow, DiagnoseSettings(), None)
-    assert proc.bandpass[1] > EDGE_FL * modes[-1], (proc.bandpass, modes)
+    assert proc.bandpass[1] > EDGE * modes[-1], (proc.bandpass, modes)
     fitted = st.linear_modes(fit.theta)["frequency_hz"]
     assert np.allclose(fitted, modes, rtol=0.05), (fitted, modes)
 
 
-EDGE_FL = 1.25
+
+
+
+def test_a_second_stage_runs_when_the_first_effect_leaves_more_than_the_noise():
+    """Stopping after one effect needs a leftover below gap_min *and* within
+    kind_check_noise x the noise floor (issue 16: a clearance left 0.0025, 4 x the noise,
+    and the damper of the pair was never looked for); the old rule stopped on gap_min."""
+    from siva_core import EFFECTS
+    from siva_core._impl.diagnose import Candidate, Location
+    from siva_core._impl.diagnose.run import _explained
+
+    v = Candidate(EFFECTS["clearance"], Location(0, -1, ("m1", "ground")), {}, fitted=True,
+                  gap_before=0.0177, gap_after=0.0025, closure=0.857)
+    s = DiagnoseSettings()
+    assert v.gap_after <= s.gap_min                      # the old rule stopped here
+    assert not _explained(v, s, noise=6e-4)              # 4 x the noise: look further
+    assert _explained(v, s, noise=1e-3)                  # 2.5 x the noise: explained
+    assert _explained(v, s, noise=None)
+    v.gap_after = 0.006
+    assert not _explained(v, s, noise=1e-2)              # above gap_min
