@@ -56,21 +56,3 @@ def test_a_band_that_cuts_a_mode_is_widened_before_the_nominal_fit():
 
 
 
-
-def test_a_second_stage_runs_when_the_first_effect_leaves_more_than_the_noise():
-    """Stopping after one effect needs a leftover below gap_min *and* within
-    kind_check_noise x the noise floor (issue 16: a clearance left 0.0025, 4 x the noise,
-    and the damper of the pair was never looked for); the old rule stopped on gap_min."""
-    from siva_core import EFFECTS
-    from siva_core._impl.diagnose import Candidate, Location
-    from siva_core._impl.diagnose.run import _explained
-
-    v = Candidate(EFFECTS["clearance"], Location(0, -1, ("m1", "ground")), {}, fitted=True,
-                  gap_before=0.0177, gap_after=0.0025, closure=0.857)
-    s = DiagnoseSettings()
-    assert v.gap_after <= s.gap_min                      # the old rule stopped here
-    assert not _explained(v, s, noise=6e-4)              # 4 x the noise: look further
-    assert _explained(v, s, noise=1e-3)                  # 2.5 x the noise: explained
-    assert _explained(v, s, noise=None)
-    v.gap_after = 0.006
-    assert not _explained(v, s, noise=1e-2)              # above gap_min

@@ -285,7 +285,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                         noise)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
-        v, r = decide(rk, cur_gap, floor, settings)
+        v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts))
         stages.append({"gap_before": cur_gap, "rule": r,
                        "ranking": [c.label() for c in rk],
                        "verdict": v.label() if v is not None else None})

@@ -116,7 +116,7 @@ class DiagnoseSettings:
     backward: bool = True
     tentative_closure: float = 0.8
     nominal_poor: float = 0.1
-    max_effects: int = 2
+    max_effects: int = 3
     sensors: bool = True
     effects: Sequence[str] | None = None
     nominal_start: Mapping[str, float] | None = None
