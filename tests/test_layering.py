@@ -176,10 +176,14 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def _modules(folder: str, root: Path = ROOT) -> dict[str, Path]:
+    """{dotted module name: file} of every Python file under ``root / folder``."""
+    return {".".join(p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p
+            for p in sorted((root / folder).rglob("*.py")) if "static" not in p.parts}
+
+
 def _service_modules(root: Path = ROOT) -> dict[str, Path]:
-    return {_module_name(p) if root == ROOT else ".".join(
-                p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p
-            for p in sorted((root / "service").rglob("*.py")) if "static" not in p.parts}
+    return _modules("service", root)
 
 
 def _layer_of(module: str) -> int:
@@ -397,3 +401,65 @@ def test_the_service_checks_fail_on_violations(tmp_path: Path) -> None:
     assert _cycles(graph) == [["service.api.b", "service.storage.a"]]
     assert _long_files(tmp_path) == ["service/trainer/c.py: 402 lines"]
     assert _dict_any_seams(tmp_path) == ["service.trainer.c.seam"]
+
+
+# --------------------------------------------------------------------------- the library
+#: a siva_core/_impl file longer than this holds more than one concept: split it by concern
+#: (processing, training, siva and structure are packages of one-concept modules)
+MAX_IMPL_LINES = 450
+#: files allowed over the limit for now: {path: why}.  Both are being edited on other
+#: branches; they are split once those merge (output_error.py is at 441 lines today and
+#: listed because those edits may take it over).  Nothing else may join this list.
+IMPL_LONG_ALLOWED: dict[str, str] = {
+    "siva_core/_impl/refine.py": "edited on another branch: split after it merges",
+    "siva_core/_impl/output_error.py": "edited on another branch: split after it merges",
+}
+
+
+def _library_graph(root: Path = ROOT) -> dict[str, list[tuple[int, str, str]]]:
+    mods = _modules("siva_core", root)
+    return {m: _runtime_imports(p, m, set(mods)) for m, p in mods.items()}
+
+
+def _long_impl_files(root: Path = ROOT) -> list[str]:
+    out = []
+    for p in sorted((root / "siva_core" / "_impl").rglob("*.py")):
+        rel = p.relative_to(root).as_posix()
+        if rel not in IMPL_LONG_ALLOWED and (n := len(p.read_text().splitlines())) > MAX_IMPL_LINES:
+            out.append(f"{rel}: {n} lines")
+    return out
+
+
+def test_siva_core_has_no_import_cycles() -> None:
+    """No circle among siva_core's modules (imports inside functions and under
+    ``if TYPE_CHECKING`` count: a package's ``__init__`` re-exports its modules, so a module
+    importing its own package back is a circle too)."""
+    cycles = _cycles(_library_graph())
+    assert not cycles, "import cycles among siva_core modules:\n" + "\n".join(
+        " <-> ".join(c) for c in cycles)
+
+
+def test_no_impl_file_holds_more_than_one_concept() -> None:
+    bad = _long_impl_files()
+    assert not bad, (f"siva_core/_impl files over {MAX_IMPL_LINES} lines: split them by "
+                     "concern (a package of one-concept modules)\n" + "\n".join(bad))
+
+
+def test_the_library_checks_fail_on_violations(tmp_path: Path) -> None:
+    """A planted cycle (through a package's re-export) and a long file are found; a long
+    file on the allow-list is not."""
+    def write(rel: str, text: str) -> None:
+        path = tmp_path / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+    write("siva_core/__init__.py", "")
+    write("siva_core/_impl/__init__.py", "")
+    write("siva_core/_impl/chain/__init__.py", "from .steps import step\n")
+    write("siva_core/_impl/chain/steps.py", "def step() -> None:\n"
+                                            "    from ..fit import fit  # lazy: still a circle\n")
+    write("siva_core/_impl/fit.py", "from .chain import step\n" + "#\n" * 450)
+    write("siva_core/_impl/refine.py", "#\n" * 500)
+    assert _cycles(_library_graph(tmp_path)) == [
+        ["siva_core._impl.chain", "siva_core._impl.chain.steps", "siva_core._impl.fit"]]
+    assert _long_impl_files(tmp_path) == ["siva_core/_impl/fit.py: 451 lines"]

@@ -10,6 +10,9 @@ import sys
 import time
 from typing import Callable, TextIO
 
+#: a callback that shows one line of progress (None: silent)
+Progress = Callable[[str], None]
+
 
 def human_seconds(s: float) -> str:
     """``14 s``, ``2 min 34 s``, ``1 h 05 min``."""
