@@ -9,7 +9,8 @@ issue's random scenarios: 12 of the 18 whose band cut a mode were missed, 4 of t
 others).  The band is chosen again to keep every linear mode of the first nominal fit,
 and that fit is used unless it is poor (train cost above ``nominal_poor``) and worse
 than the first; when the first fit cannot follow its train records the widest band is
-tried too and kept when its train cost is lower."""
+tried too and kept when its train cost is lower.  Only for ``processing="auto"``: a
+chain the caller gives is kept as given."""
 from __future__ import annotations
 
 from typing import Sequence

@@ -17,7 +17,7 @@ from ..structure import Structure
 from .elimination import without_first
 from .fitting import bootstrap_intervals, continue_fit, fit_candidate, scan_candidate
 from .band import fit_nominal_in_band
-from .nominal import NominalFit
+from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate, Diagnosis
 from .scoring import judge as _judge, validation_gap
@@ -245,8 +245,11 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     _say(progress, f"processing: {proc.describe() if hasattr(proc, 'describe') else proc}")
 
     t0 = time.perf_counter()
-    proc, nominal_fit = fit_nominal_in_band(structure, train, [*train, *val], proc,
-                                            settings, progress)
+    if isinstance(processing, str) and processing == "auto":  # a band chosen from the data
+        proc, nominal_fit = fit_nominal_in_band(structure, train, [*train, *val], proc,
+                                                settings, progress)
+    else:  # the caller's chain is kept as given
+        nominal_fit = fit_nominal(structure, train, proc, settings, progress)
     theta, train_cost, start = nominal_fit.theta, nominal_fit.train_cost, nominal_fit.start
     timing["nominal_fit"] = time.perf_counter() - t0
     val_prob = _Outputs(structure, val, proc, theta)
