@@ -56,3 +56,18 @@ def test_a_band_that_cuts_a_mode_is_widened_before_the_nominal_fit():
 
 
 
+
+
+def test_the_linear_part_of_a_start_zeroes_only_the_nonlinear_forces():
+    """The fallback start when every nominal start diverges (issue 16: least squares gave
+    a known cubic spring k3 = -1.1e10 that escapes): springs and dampers kept, the cubic
+    spring's k3 set to zero; a linear model has no such start."""
+    from siva_core._impl.diagnose.nominal import linear_part
+
+    spec = {**CHAIN2, "elements": [*CHAIN2["elements"], {
+        "kind": "cubic_spring", "between": ["a", "ground"], "params": {"k3": "knl"}}]}
+    st = Structure.from_dict(spec)
+    th = st.vector({**TRUTH, "knl": -1.1e10})
+    lin = st.as_dict(linear_part(st, th))
+    assert lin["knl"] == 0.0 and all(lin[k] == v for k, v in TRUTH.items())
+    assert linear_part(Structure.from_dict(CHAIN2), Structure.from_dict(CHAIN2).vector(TRUTH)) is None
