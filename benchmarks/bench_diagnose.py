@@ -44,6 +44,7 @@ import argparse
 import dataclasses
 import json
 import os
+import statistics
 import sys
 import time
 import warnings
@@ -222,7 +223,7 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
     for r in rows:
         groups.setdefault(r["case"].split(":")[0] if ":" in r["case"] else "named", []).append(r)
     print(f"\n{'structure':10s} {'cases':>5s} {'right':>6s} {'share':>6s} {'null false':>10s} "
-          f"{'mean s':>7s} {'max s':>7s} {'mean cpu s':>10s}")
+          f"{'mean s':>7s} {'median s':>8s} {'max s':>7s} {'mean cpu s':>10s}")
     for g, rs in groups.items():
         nulls = [r for r in rs if not r["expected"]]
         false = sum(1 for r in nulls if r["verdict"])
@@ -230,7 +231,8 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
         times = [r["time_s"] for r in rs]
         cpu = [r.get("cpu_s", 0.0) for r in rs]
         print(f"{g:10s} {len(rs):5d} {ok:6d} {100 * ok / len(rs):5.0f}% {false:4d} of {len(nulls):<3d} "
-              f"{sum(times) / len(times):7.1f} {max(times):7.1f} {sum(cpu) / len(cpu):10.1f}")
+              f"{sum(times) / len(times):7.1f} {statistics.median(times):8.1f} "
+              f"{max(times):7.1f} {sum(cpu) / len(cpu):10.1f}")
         # effects whose records show no gap above the relevance floor (gap_min): null is
         # the right answer to what the records show; counted apart as well as in "right"
         faint = [r for r in rs if r["expected"] and (r["gap_before"] or 0.0) < GAP_MIN]

@@ -3,8 +3,10 @@
 Noise-free records (no response, force or hum noise) of a coverage structure, hit with the
 exact half-sine pulse starting ``phase`` samples after the sample at 0.1 s; refined from the truth with the
 force multiplier fitted per record (as ``best``), once as before and once with the force's
-sub-sample delay fitted too (``refine(..., fit_force_shift=True)``).  With no noise, any
-error left is the model's reading of the force between its samples (docs/perf.md 6.3).
+sub-sample delay fitted too (``refine(..., fit_force_shift=True)``), its spread, or the
+kick at the pulse (``--mode kick``: ``refine(..., fit_force_kick=True)``, docs/perf.md 6.5;
+the other modes pin the kick off).  With no noise, any error left is the model's reading
+of the force between its samples (docs/perf.md 6.3).
 
     OMP_NUM_THREADS=1 nice -n 5 .venv/bin/python benchmarks/bench_pulse_phase.py \\
         [--case chain3_end_1k --case chain4_inner_disp] [--phase 0 --phase 0.5] [--amp A]
@@ -25,7 +27,8 @@ from cases import CASES  # noqa: E402
 from siva_core import choose_processing, refine  # noqa: E402
 
 #: the amplitude of the 6.3 table per case (the low end of its range: weakest nonlinearity)
-AMPLITUDE = {"chain3_end_1k": 50.0, "chain4_inner_disp": 125.0, "twodof_end_slow": 75.0}
+AMPLITUDE = {"chain3_end_1k": 50.0, "chain4_inner_disp": 125.0, "twodof_end_slow": 75.0,
+             "chain3_exact": 50.0, "lono_exact": 500.0}
 
 
 def run(case_name: str, phase: float, amplitude: float, mode: str) -> dict:
@@ -38,6 +41,7 @@ def run(case_name: str, phase: float, amplitude: float, mode: str) -> dict:
     c0 = time.process_time()
     res = refine(st, case.theta(), [rec], proc, fit_force_scale=True,
                  fit_force_shift="delay" in mode, fit_force_spread="spread" in mode,
+                 fit_force_kick="kick" in mode,
                  uncertainty="gauss-newton")
     return {"names": list(st.free), "err": res.theta / case.theta() - 1,
             "scale": float(np.ravel(res.force_scale)[0]),
@@ -52,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phase", action="append", type=float)
     ap.add_argument("--amp", type=float)
     ap.add_argument("--mode", action="append", choices=["before", "delay", "spread",
-                                                        "delay+spread"],
+                                                        "delay+spread", "kick"],
                     help="nuisances fitted besides the multiplier (default: all four)")
     a = ap.parse_args(argv)
     cases = a.case or ["chain3_end_1k", "chain4_inner_disp"]

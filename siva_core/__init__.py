@@ -34,6 +34,7 @@ Identification
     :func:`effective_sample_size`, :class:`ConvergenceMonitor`;
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
     :func:`force_profiled_output_error`, :func:`displacement_mse`, :class:`OutputErrorProblem`,
+    :func:`set_pulse_reading` (ablation: the kick at a hammer pulse, docs/perf.md 6.5),
     :func:`linearize` -> :class:`Linearization` (the output error linearised at an anchor),
     :func:`settle` -> :class:`Settled` (the anchor moved to the output-error optimum first);
     baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
@@ -82,6 +83,7 @@ _export("ensemble", "Ensemble", "normal_summary", "effective_sample_size")
 _export("convergence", "ConvergenceMonitor")
 _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
         "OutputErrorProblem", "force_profiled_output_error")
+_export("pulse_kick", "set_pulse_reading")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
 _export("linearized", "linearize", "Linearization", "settle", "Settled", "gauss_newton_step")
@@ -131,6 +133,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.progress import EpochProgress, Eta, FractionProgress
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                force_profiled_output_error, output_error, refine)
+    from ._impl.pulse_kick import set_pulse_reading
     from ._impl.report import write_report
     from ._impl.simulate import (Simulation, adjusted_stage_force, auto_substeps,
                                  set_measured_force_interp, simulate, stage_force, warmup)

@@ -114,3 +114,17 @@ def test_validation_accepts_the_right_model_and_rejects_a_wrong_one(sdof_fit):
     wrong = res.theta * np.array([1.0, 1.0, 0.5])  # half the cubic stiffness
     bad = validation_score(st, wrong, recs[1:], proc)
     assert not bad["accepted"] and bad["statistic"] > 5 * right["statistic"], bad
+
+
+def test_approach_ii_interval_is_widened_to_a_floor_never_narrowed():
+    from siva_core._impl.ensemble import normal_summary, widened_to
+
+    rng = np.random.default_rng(3)
+    samples = rng.normal([1.0, 10.0], [0.01, 0.5], size=(400, 2))
+    summ = normal_summary(samples, ["a", "b"], ess=False)
+    out = widened_to(summ, ["a", "b"], np.array([0.05, 0.1]))
+    assert out["a"]["std"] == 0.05 and out["a"]["std_samples"] == summ["a"]["std"]
+    lo, hi = out["a"]["ci95"]
+    assert abs((hi - lo) / 2 - 1.959963984540054 * 0.05) < 1e-12
+    assert out["b"] == summ["b"]  # already wider than its floor: unchanged
+    assert "std_samples" not in summ["a"]  # the input is not modified

@@ -52,6 +52,24 @@ def normal_summary(samples: np.ndarray, names: Sequence[str], *, ess: bool = Tru
     return out
 
 
+def widened_to(summary: dict[str, dict], names: Sequence[str],
+               std_floor: np.ndarray) -> dict[str, dict]:
+    """``summary`` with each std at least ``std_floor`` (interval recomputed; the samples'
+    own std kept as ``std_samples``).  Why: Approach II's per-epoch samples track the
+    optimum under parametric-bootstrap replicates (measurement and force noise), which miss
+    what the moving-block bootstrap of the same fit holds (misfit, non-stationary noise);
+    ``best``'s interval is the wider of the two, and Approach II's may not be narrower
+    (docs/method.md, "Uncertainty that holds")."""
+    out = {k: dict(v) for k, v in summary.items()}
+    for name, floor in zip(names, np.asarray(std_floor, dtype=float)):
+        row = out[name]
+        if not np.isfinite(floor) or floor <= row["std"]:
+            continue
+        row["std_samples"], row["std"] = row["std"], float(floor)
+        row["ci95"] = [row["mean"] - Z95 * floor, row["mean"] + Z95 * floor]
+    return out
+
+
 class Ensemble:
     """Running Approach II ensemble: per-epoch parameter samples after convergence.
 

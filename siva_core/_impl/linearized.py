@@ -96,14 +96,18 @@ class Linearization:
 
 def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
               processing: Processing, *, fit_force_scale: bool | str = "auto",
-              fit_force_spread: bool | str = "auto", n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
+              fit_force_spread: bool | str = "auto", fit_force_kick: bool | str = "auto",
+              n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
               substeps: Sequence[int] | None = None) -> Linearization:
     """Linearise the output error of ``records`` at ``theta`` (see the module doc).
     ``fit_force_spread``: also profile out a change of each record's force spread
     (``adjusted_stage_force``; "auto": with the force scale, when
     ``default_force_spread``: off unless enabled),
-    the pulse's width between its few samples (docs/perf.md 6.3)."""
+    the pulse's width between its few samples (docs/perf.md 6.3).  ``fit_force_kick``:
+    also profile out each short pulse's kick (``refine``'s ``fit_force_kick``; "auto":
+    with the force scale, where ``force_kick_applicable``)."""
     from .output_error import OutputErrorProblem, _state_derived, default_force_spread
+    from .pulse_kick import KICK_STEP_TOL, KICK_STEPS, default_force_kick, kick_mask
     from .refine import _log_mask
     from .replicates import noise_replicates
 
@@ -130,7 +134,14 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     n_fs = n_rec if fit_force_scale else 0
     n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = n + n_fs + n_sp + n_ic
+    if fit_force_kick == "auto":
+        fit_force_kick = bool(fit_force_scale) and default_force_kick(structure, prob.records)
+    kick_idx = (np.argwhere(np.stack([kick_mask(rr, n_dof, bool(fit_force_scale))
+                                      for rr in prob.records]))
+                if fit_force_kick else np.zeros((0, 3), dtype=int))
+    n_kk = len(kick_idx)
+    i_kk = n + n_fs + n_sp + n_ic
+    n_x = i_kk + n_kk
     ic_scale = (np.maximum(np.concatenate([r.state_rms for r in prob.records]), 1e-300)
                 if fit_initial else np.zeros(0))
 
@@ -142,25 +153,45 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         if n_sp:
             extra["force_spreads"] = X[:, n + n_fs:n + n_fs + n_sp]
         if n_ic:
-            ic = (X[:, n + n_fs + n_sp:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, n + n_fs + n_sp:i_kk] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
+        extra.update(_kicks(X))
         return prob.residuals(th, **extra)
+
+    def _kicks(X: np.ndarray) -> dict[str, np.ndarray]:
+        if not n_kk:
+            return {}
+        kick = np.zeros((len(X), n_rec, 2, n_dof))
+        kick[:, kick_idx[:, 0], kick_idx[:, 1], kick_idx[:, 2]] = X[:, i_kk:]
+        return {"force_kicks": kick}
 
     # nuisance at its optimum for the anchor first (Gauss-Newton on those columns only):
     # a strongly nonlinear response depends on the impulse nonlinearly, so projecting out
     # a linearised force scale far from its optimum would leave a residual that moves theta
     base = np.zeros(n_x)
-    for _ in range(4 if n_x > n else 0):
-        Xn = np.repeat(base[None], n_x - n + 1, axis=0)
-        Xn[1:, n:] += np.eye(n_x - n) * fd_step
+    n_q = n_x - n - n_kk   # the nuisance without the kick
+    # with a kick: first the others alone (as without it), then ``KICK_STEPS`` steps on
+    # all: a joint step from a multiplier far off overshoots into a kicked minimum that
+    # is not the best (``force_profiled_output_error``)
+    plan = ([n_q] * 4 + [n_q + n_kk] * KICK_STEPS) if n_kk else [n_x - n] * (4 if n_x > n else 0)
+    settled = False  # the nuisance without the kick has converged
+    for n_new in plan:
+        if n_new == 0 or (settled and n_new == n_q and n_kk):
+            continue
+        Xn = np.repeat(base[None], n_new + 1, axis=0)
+        Xn[1:, n:n + n_new] += np.eye(n_new) * fd_step
         Rn = evaluate(Xn)
         if not np.all(np.isfinite(Rn)):
             break
         Jn = (Rn[1:] - Rn[0]).T / fd_step
         step = -np.linalg.lstsq(Jn, Rn[0], rcond=None)[0]
-        base[n:] += step
-        if np.max(np.abs(step)) < 1e-9:
+        base[n:n + n_new] += step
+        if n_kk and n_new == n_x - n and np.max(np.abs(step)) < KICK_STEP_TOL:
             break
+        if np.max(np.abs(step)) < 1e-9:
+            if n_new == n_x - n:
+                break
+            settled = True
     X = np.repeat(base[None], n_x + 1, axis=0)
     X[1:] += np.eye(n_x) * fd_step
     R = evaluate(X)
@@ -185,8 +216,9 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
         if n_sp:
             extra0["force_spreads"] = base[None, n + n_fs:n + n_fs + n_sp]
         if n_ic:
-            ic = (base[None, n + n_fs + n_sp:] * ic_scale).reshape(1, n_rec, 2, n_dof)
+            ic = (base[None, n + n_fs + n_sp:i_kk] * ic_scale).reshape(1, n_rec, 2, n_dof)
             extra0["dq0"], extra0["dv0"] = ic[:, :, 0], ic[:, :, 1]
+        extra0.update(_kicks(base[None]))
         # the stationary part from the *profiled* residuals: the anchor's raw residuals
         # still hold the impulse error that the force scale absorbs
         noise = proj(noise_replicates(prob, theta[None], extra0, r, series, n_rep=n_noise,

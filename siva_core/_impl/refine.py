@@ -27,7 +27,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -36,6 +36,7 @@ from .bootstrap import bootstrap_covariance, perturbation_solutions, series_of
 from .ensemble import Z95
 from .output_error import (OutputErrorProblem, _state_derived, displacement_mse,  # noqa: F401
                            force_profiled_output_error, output_error)
+from .pulse_kick import KICK_BOUNDS, default_force_kick, kick_mask
 from .processing import Processing
 from .recording import Recording
 from .simulate import OMEGA_H
@@ -79,10 +80,12 @@ class RefineResult:
     force_scale: np.ndarray | None = None   # per record, when fit_force_scale
     force_shift: np.ndarray | None = None   # per record [samples], when fit_force_shift
     force_spread: np.ndarray | None = None  # per record [samples^2], when fit_force_spread
+    force_kick: np.ndarray | None = None    # (n_records, 2, n_dof), when the kick is fitted
     stages: list[dict[str, Any]] = field(default_factory=list)
     std_gauss_newton: np.ndarray | None = None
     uncertainty: str = "bootstrap"
     block_length: int = 1
+    stopped: bool = False  # ended by ``stop`` (a loser's fit cut short), not converged
     jac: np.ndarray | None = field(default=None, repr=False)
     residuals: np.ndarray | None = field(default=None, repr=False)
     dtheta_dx: np.ndarray | None = field(default=None, repr=False)
@@ -107,11 +110,14 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
            horizons: Sequence[float] | str | None = "auto",
            log_scale: bool | str | Sequence[str] = "auto", fit_force_scale: bool = False,
            fit_force_shift: bool = False, fit_force_spread: bool = False,
+           fit_force_kick: bool | str = "auto",
            bounds: tuple[np.ndarray, np.ndarray] | None = None,
            fit_initial: bool | str = "auto",
            fd_step: float = 1e-6, ftol: float = 1e-10, xtol: float = 1e-10,
            gtol: float = 1e-10, substep_margin: float = 1.25, verbose: int = 0,
-           uncertainty: str = "bootstrap", n_boot: int = 400) -> RefineResult:
+           uncertainty: str = "bootstrap", n_boot: int = 400,
+           stop: Callable[[int, bool, int, float, OutputErrorProblem], bool] | None = None
+           ) -> RefineResult:
     """Output-error refinement from theta0 (e.g. SIVA's Approach III).
 
     Minimises the residuals of ``output_error`` with ``least_squares`` (TRF, bounds from the
@@ -149,10 +155,20 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     ``fit_force_spread``: also fit a change of the force's spread (second moment) per
     record, within +-0.5 dt^2 (``simulate.grid.adjusted_stage_force``): the pulse's width
     between its samples, which its few samples leave undetermined.
+    ``fit_force_kick``: also fit, per record that is one short hammer pulse, a kick at the
+    pulse: an impulse (but on the hit DOF when the multiplier is fitted) and a doublet on
+    every DOF (``output_error.force_kick_patterns``), i.e. the structure's state just after
+    the pulse, which a pulse of few samples leaves undetermined (docs/perf.md 6.5).
+    "auto": with ``fit_force_scale``, where ``output_error.force_kick_applicable``.
     ``fit_initial``: also fit offsets of each record's initial displacement and velocity
     (nuisance parameters, scaled by the record's state RMS).  "auto": for records without
     force whose displacement or velocity is derived rather than measured (a free decay
     recorded by accelerometers: its starting state is only known through integration).
+    ``stop``: called after every iteration as ``stop(stage, last, iteration, cost,
+    problem)`` (the stage's index, whether it is the full-record stage, the iteration
+    within it, the cost on that stage's records, that stage's problem); True ends the
+    refinement there (``stopped``; the remaining stages are skipped).  A caller comparing fits cuts short one that cannot win; without
+    ``stop`` nothing changes (the same iterations, bit for bit).
     """
     t_start = time.perf_counter()
     theta0 = np.asarray(theta0, dtype=float).ravel()
@@ -204,7 +220,16 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     n_sh = n_rec if fit_force_shift else 0
     n_sp = n_rec if fit_force_spread else 0
     n_ic = 2 * n_dof * n_rec if fit_initial else 0
-    n_x = len(free) + n_fs + n_sh + n_sp + n_ic
+    if fit_force_kick == "auto":
+        fit_force_kick = fit_force_scale and default_force_kick(structure, full.records)
+    if fit_force_kick and not any(r.kick_pulse is not None for r in full.records):
+        raise ValueError("fit_force_kick needs a record whose force is one short pulse")
+    # (record, kind, dof) of each fitted kick component
+    kick_idx = (np.argwhere(np.stack([kick_mask(r, n_dof, fit_force_scale)
+                                      for r in full.records]))
+                if fit_force_kick else np.zeros((0, 3), dtype=int))
+    n_kk = len(kick_idx)
+    n_x = len(free) + n_fs + n_sh + n_sp + n_ic + n_kk
     if fit_force_scale:
         lower = np.concatenate([lower, np.full(n_rec, math.log(0.5))])
         upper = np.concatenate([upper, np.full(n_rec, math.log(2.0))])
@@ -220,6 +245,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         ic_scale = np.maximum(np.concatenate([r.state_rms for r in full.records]), 1e-300)
         lower = np.concatenate([lower, np.full(n_ic, -np.inf)])
         upper = np.concatenate([upper, np.full(n_ic, np.inf)])
+    if n_kk:
+        lower = np.concatenate([lower, [KICK_BOUNDS[kind][0] for _, kind, _ in kick_idx]])
+        upper = np.concatenate([upper, [KICK_BOUNDS[kind][1] for _, kind, _ in kick_idx]])
+    i_kk = len(free) + n_fs + n_sh + n_sp + n_ic
 
     def to_theta(X: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         Xp = X[:, :len(free)]
@@ -233,8 +262,13 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
             i0 = len(free) + n_fs + n_sh
             extra["force_spreads"] = X[:, i0:i0 + n_sp]
         if fit_initial:
-            ic = (X[:, len(free) + n_fs + n_sh + n_sp:] * ic_scale).reshape(len(X), n_rec, 2, n_dof)
+            ic = (X[:, len(free) + n_fs + n_sh + n_sp:i_kk] * ic_scale).reshape(len(X), n_rec, 2,
+                                                                               n_dof)
             extra["dq0"], extra["dv0"] = ic[:, :, 0], ic[:, :, 1]
+        if n_kk:
+            kick = np.zeros((len(X), n_rec, 2, n_dof))
+            kick[:, kick_idx[:, 0], kick_idx[:, 1], kick_idx[:, 2]] = X[:, i_kk:]
+            extra["force_kicks"] = kick
         return th, extra
 
     x = np.zeros(n_x)
@@ -244,6 +278,7 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
     fractions = _horizons(full, horizons, to_theta, x, n_x)
     nfev = njev = 0
     res = None
+    stopped = False
     prob = full
     stages = []
     for stage, frac in enumerate(fractions):
@@ -253,12 +288,17 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         else:
             prob = full.head([max(16, int(round(frac * len(r.target)))) for r in full.records])
         budget = max(5, max_nfev) if last else max(5, max_nfev // 4)
+        halt = None if stop is None else _stage_stop(stop, stage, last, prob)
         res = _solve(prob, to_theta, x, lower, upper, budget, fd_step, ftol,
-                     xtol if last else max(xtol, 1e-6), gtol, verbose)
+                     xtol if last else max(xtol, 1e-6), gtol, verbose, halt)
         nfev += res.nfev
         njev += res.njev or 0
         x = res.x
         stages.append({"fraction": frac, "nfev": int(res.nfev), "cost": float(2 * res.cost)})
+        if res.status == -2:  # ``stop`` said so: the remaining stages are skipped
+            stopped = True
+            stages[-1]["stopped"] = True
+            break
     assert res is not None
     th, extra = to_theta(res.x[None])
     theta = th[0]
@@ -273,6 +313,8 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
         dth = np.concatenate([dth, np.ones(n_sp)])
     if fit_initial:
         dth = np.concatenate([dth, ic_scale])
+    if n_kk:
+        dth = np.concatenate([dth, np.ones(n_kk)])
     # covariance in the well-scaled x variables, then to theta: cov = D cov_x D
     # (inverting J^T J in theta units would mix 1e7 and 1e0 scales and lose the small ones)
     r = res.fun
@@ -315,8 +357,10 @@ def refine(structure: Any, theta0: Any, records: Recording | Sequence[Recording]
                                      else extra["force_shifts"][0]),
                         force_spread=(None if "force_spreads" not in extra
                                       else extra["force_spreads"][0]),
+                        force_kick=(None if "force_kicks" not in extra
+                                    else extra["force_kicks"][0]),
                         std_gauss_newton=std_gn, uncertainty=uncertainty, block_length=block,
-                        jac=res.jac, residuals=r, dtheta_dx=dth)
+                        stopped=stopped, jac=res.jac, residuals=r, dtheta_dx=dth)
 
 
 def _wider(c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
@@ -442,9 +486,20 @@ def _crossings(x: np.ndarray, level: float = 0.1) -> np.ndarray:
     return np.cumsum(out)
 
 
+def _stage_stop(stop: Callable[[int, bool, int, float, OutputErrorProblem], bool],
+                stage: int, last: bool, prob: OutputErrorProblem) -> Callable[[Any], None]:
+    """``least_squares``' callback for one stage of ``refine`` (scipy stops the solver
+    when it raises StopIteration; the argument must be named ``intermediate_result``)."""
+    def halt(intermediate_result: Any) -> None:
+        if stop(stage, last, int(intermediate_result.nit),
+                2.0 * float(intermediate_result.cost), prob):
+            raise StopIteration
+    return halt
+
+
 def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.ndarray,
            upper: np.ndarray, max_nfev: int, fd_step: float, ftol: float, xtol: float,
-           gtol: float, verbose: int) -> Any:
+           gtol: float, verbose: int, callback: Callable[[Any], None] | None = None) -> Any:
     n = x0.size
 
     def evaluate(X: np.ndarray) -> np.ndarray:
@@ -479,9 +534,10 @@ def _solve(prob: OutputErrorProblem, to_theta: Any, x0: np.ndarray, lower: np.nd
         raise ValueError("refine: the simulation diverges at the start (non-finite residuals)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
+        kw = {} if callback is None else {"callback": callback}  # scipy >= 1.16
         return least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf",
                              x_scale=1.0, max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol,
-                             verbose=verbose)
+                             verbose=verbose, **kw)
 
 
 def _pinv_sym(A: np.ndarray) -> np.ndarray:

@@ -49,8 +49,9 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
             dv = None if "dv0" not in extra else extra["dv0"][:, k]
             sh = None if "force_shifts" not in extra else extra["force_shifts"][:, k]
             sp = None if "force_spreads" not in extra else extra["force_spreads"][:, k]
+            kk = None if "force_kicks" not in extra else extra["force_kicks"][:, k]
             base, ok = prob.record_residuals(theta, k, fs, dq, dv, force_shift=sh,
-                                             force_spread=sp)
+                                             force_spread=sp, force_kick=kk)
             noisy = np.repeat(rec.force[None], n_rep, axis=0)
             for b in range(n_rep):
                 noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
@@ -64,11 +65,15 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                 rb, okb = prob.record_residuals(rep(np.atleast_2d(theta), c), k, rep(fs, c),
                                                 rep(dq, c), rep(dv, c), record=alt,
                                                 force_shift=rep(sh, c),
-                                                force_spread=rep(sp, c))
+                                                force_spread=rep(sp, c),
+                                                force_kick=rep(kk, c))
                 if ok[0]:
                     good = np.flatnonzero(okb)
                     E[b0 + good, col:col + size] += rb[good] - base[0]
-            if FORCE_SHAPE_SPREAD > 0 and ok[0] and prob.interp != "linear":
+            # with a fitted kick the state after the pulse is free, which spans whatever
+            # its shape between samples does: no shape term then (docs/perf.md 6.5)
+            kicked = kk is not None and rec.kick_pulse is not None
+            if FORCE_SHAPE_SPREAD > 0 and ok[0] and prob.interp != "linear" and not kicked:
                 # the force between its samples is unknown: a replicate's force shape
                 # varies by FORCE_SHAPE_SPREAD x (straight lines - the moment-matched
                 # reading), the scale of what sampling a short pulse leaves undetermined

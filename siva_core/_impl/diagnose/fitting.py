@@ -14,6 +14,7 @@ from ..structure import Structure
 from .model_edit import augmented
 from .nominal import _plausible
 from .results import Candidate
+from .early_stop import StopRule, cannot_win
 from .settings import FAST, DiagnoseSettings
 
 
@@ -50,10 +51,53 @@ def _batches(c: Candidate, aug: Structure, names: dict[str, str], theta_nom: np.
     return out
 
 
+#: scan sets are simulated in groups whose stiffness at rest differs by less than this
+#: factor (a batch takes the substeps of its stiffest set)
+SCAN_GROUP_RATE = 4.0
+
+
+def _rate_groups(aug: Structure, batch: np.ndarray) -> list[np.ndarray]:
+    """Indices of ``batch`` in groups of similar stiffness: each set's fastest rate at
+    rest (the tangent of every element there: a dry friction's smoothing, a damper's
+    slope), bucketed by factors of ``SCAN_GROUP_RATE``.  A log-spaced magnitude scan
+    spans 3.5 decades; simulated as one batch, its weakest sets ran at the substeps of
+    the strongest (measured: a coulomb scan on LO-NO, 6-7 s of a 50 s diagnosis).  Each
+    group still gets its own substeps from the usual pilot, so every set is simulated to
+    the simulator's accuracy target."""
+    from ..simulate.substeps import _max_rate
+
+    n = aug.n_dof
+    rest = np.zeros((1, 1, n))
+    with np.errstate(all="ignore"):
+        rates = np.array([_max_rate(aug, th[None], rest, rest) for th in batch])
+    if not np.all(np.isfinite(rates)) or not np.all(rates > 0):
+        return [np.arange(len(batch))]
+    bucket = np.floor(np.log(rates / rates.min()) / math.log(SCAN_GROUP_RATE)).astype(int)
+    return [np.flatnonzero(bucket == b) for b in np.unique(bucket)]
+
+
 def _scan_residuals(aug: Structure, train: Sequence[Recording], proc: Processing,
                     batch: np.ndarray) -> np.ndarray | None:
-    """Residuals of a scan batch; when the batch fails or diverges as a whole (one unstable
-    set can spoil a shared integration), each set alone."""
+    """Residuals of a scan batch, simulated in groups of similar stiffness
+    (``_rate_groups``)."""
+    groups = _rate_groups(aug, batch)
+    if len(groups) == 1:
+        return _group_residuals(aug, train, proc, batch)
+    parts = [(idx, _group_residuals(aug, train, proc, batch[idx])) for idx in groups]
+    n = next((R.shape[1] for _, R in parts if R is not None), 0)
+    if n == 0:
+        return None
+    out = np.full((len(batch), n), np.nan)
+    for idx, R in parts:
+        if R is not None and R.shape[1] == n:
+            out[idx] = R
+    return out
+
+
+def _group_residuals(aug: Structure, train: Sequence[Recording], proc: Processing,
+                     batch: np.ndarray) -> np.ndarray | None:
+    """Residuals of a batch of scan sets; when the batch fails or diverges as a whole (one
+    unstable set can spoil a shared integration), each set alone."""
     from .outputs import _Outputs
 
     try:
@@ -125,7 +169,8 @@ def scan_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float,
-                  nominal_cost: float = math.inf) -> None:
+                  nominal_cost: float = math.inf, leader_cost: float = math.inf,
+                  leader: Candidate | None = None) -> None:
     """Fit nominal + candidate by output error on the train records (in place).
 
     Starts: the nominal fit with the new magnitude at a few multiples of the score test's
@@ -135,7 +180,11 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     (``scan_candidate``) is the start when there is no other, and a second start when the
     first fit stalls (train cost above ``settings.stalled`` x the nominal one): measured,
     a scan start taken whenever it costs least led refine to a worse basin (quadratic
-    damper c2 = 2.2 instead of 3.96), so it is a fallback, not a rival."""
+    damper c2 = 2.2 instead of 3.96), so it is a fallback, not a rival.
+
+    ``leader_cost``: the best train cost fitted so far in this stage (``leader``: the
+    structural candidate with the best one); a fit that cannot come near it is cut short
+    (``cannot_win``; ``c.stopped``)."""
     from ..refine import output_error, refine
 
     t0 = time.perf_counter()
@@ -183,8 +232,9 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             best_cost, th0 = float(costs[k]), batch[k]
     if th0 is None:
         raise ValueError("every start diverges")
+    stop = cannot_win(leader_cost, settings, leader, train, proc)
     res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev,
-                 uncertainty=FAST)
+                 uncertainty=FAST, stop=stop)
     c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
     j = aug.free.index(names[eff.magnitude])
     scan_starts = [t for t in scan_starts if not _near(t[j], res.theta[j])]
@@ -196,7 +246,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             costs = output_error(aug, np.stack(scan_starts), list(train), proc)
             k = int(np.argmin(costs))
             res2 = refine(aug, scan_starts[k], list(train), proc,
-                          max_nfev=settings.fit_nfev, uncertainty=FAST)
+                          max_nfev=settings.fit_nfev, uncertainty=FAST, stop=stop)
             c2 = float(output_error(aug, res2.theta[None], list(train), proc)[0])
             if c2 < c_ref:
                 res, c_ref = res2, c2
@@ -211,14 +261,20 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     c.intervals = _intervals(res, aug, names) if c_ref <= best_cost else {}
     c.train_cost = cost
     c.fitted = True
+    c.stopped = bool(res.stopped)
+    if c.stopped:
+        c.note = ((c.note + "; ") if c.note else "") + (
+            f"fit stopped early: train cost {cost:.3g} > {settings.stop_ratio:g} x the "
+            f"leader's {leader_cost:.3g}")
     c.fit_time_s = time.perf_counter() - t0
 
 
 def continue_fit(c: Candidate, train: Sequence[Recording], proc: Processing,
-                 nfev: int) -> None:
+                 nfev: int, stop: StopRule | None = None) -> None:
     """More evaluations for a finalist of the first, cheaper round of fits: refine from
     its fit on the full records (no horizons: it is in its basin already); kept when the
-    train cost improves."""
+    train cost improves.  ``stop``: ``cannot_win`` against the leader (a finalist kept
+    as the leader's rival of another kind may sit far above it)."""
     from ..refine import output_error, refine
 
     if c.structure is None or c.theta is None or nfev <= 0:
@@ -226,8 +282,11 @@ def continue_fit(c: Candidate, train: Sequence[Recording], proc: Processing,
     t0 = time.perf_counter()
     recs = list(c.correct(train))
     res = refine(c.structure, c.theta, recs, proc, max_nfev=nfev, horizons=None,
-                 uncertainty=FAST)
+                 uncertainty=FAST, stop=stop)
     cost = float(output_error(c.structure, res.theta[None], recs, proc)[0])
+    if res.stopped:
+        c.stopped = True
+        c.note = ((c.note + "; ") if c.note else "") + "second round stopped early"
     if cost < c.train_cost:
         c.theta, c.train_cost = res.theta, cost
         vals = c.structure.as_dict(res.theta)

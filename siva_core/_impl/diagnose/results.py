@@ -44,6 +44,7 @@ class Candidate:
     per_record: list[dict[str, Any]] = field(default_factory=list)
     fit_time_s: float = 0.0
     note: str = ""
+    stopped: bool = False         # its fit was cut short: it could not win (early stop)
     ee_score: float = 0.0         # share of the equation-error residual explained
     ee_start: tuple[dict[str, float], dict[str, float]] | None = None  # joint equation-
     # error solution (nominal parameters, new coefficients): a fit start

@@ -80,6 +80,13 @@ class DiagnoseSettings:
     nominal_poor: a nominal fit leaving more than this share of its train records' energy
         (train cost) is fitted again in the widest band (``band.fit_nominal_in_band``): a
         band that cuts a mode leaves the nominal unable to follow its own records.
+    stop_ratio: early stop (speed): a candidate fit whose train cost on the full records
+        is still above this multiple of the best train cost fitted so far in its stage,
+        ``stop_after`` iterations into its full-record stage, ends there: it cannot win
+        (the verdict's separation needs 1/``separation`` = 1.33 x), is no rival and gets no
+        second round.  ``math.inf`` turns it off.
+    stop_after: ... iterations of the full-record stage before that check (by then the
+        growing horizons have brought the fit into its basin).
     max_effects: most effects named at once (added greedily while each one is significant
         on the validation records).
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
@@ -115,6 +122,8 @@ class DiagnoseSettings:
     kind_check_noise: float = 3.0
     backward: bool = True
     tentative_closure: float = 0.8
+    stop_ratio: float = 10.0
+    stop_after: int = 2
     nominal_poor: float = 0.1
     max_effects: int = 3
     sensors: bool = True

@@ -16,7 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..ensemble import normal_summary
+from ..ensemble import normal_summary, widened_to
 from ..recording import Recording
 from ..refine import NUMERICAL_REL_STD
 from ..progress import Eta, Progress
@@ -194,6 +194,11 @@ class Siva:
                 notes.append("best: refined again from Approach II's mean (lower output error "
                              "than the first refinement)")
             timing["refine"] += time.perf_counter() - t0
+        if (settings.fit_target == "output" and best_std is not None
+                and np.all(np.isfinite(best_std)) and len(samples_II)
+                and np.all(np.abs(samples_II.mean(0) - best) <= 3.0 * np.asarray(best_std))):
+            # same basin: Approach II's interval is never narrower than best's bootstrap
+            summ_II = widened_to(summ_II, names, np.asarray(best_std))
         if settings.fit_target == "output":
             # Approach III over the output-error ensemble (the paper's rule, its candidates)
             from ..refine import displacement_mse
