@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from siva_core import Processing, Structure
+from siva_core import Processing, Recording, Structure
 from siva_core._impl.diagnose import DiagnoseSettings, synthetic_impacts
 from siva_core._impl.diagnose.band import EDGE, cut_modes, fit_nominal_in_band
 
@@ -71,3 +71,11 @@ def test_the_linear_part_of_a_start_zeroes_only_the_nonlinear_forces():
     lin = st.as_dict(linear_part(st, th))
     assert lin["knl"] == 0.0 and all(lin[k] == v for k, v in TRUTH.items())
     assert linear_part(Structure.from_dict(CHAIN2), Structure.from_dict(CHAIN2).vector(TRUTH)) is None
+
+
+def test_a_mode_too_slow_for_the_records_is_not_kept_in_the_band():
+    from siva_core._impl.diagnose.band import resolvable
+
+    t = np.arange(0, 2.0, 1 / 256)
+    rec = Recording(t, {"acc_x": np.zeros_like(t)})
+    assert resolvable([0.08, 1.9, 2.5, 40.0], [rec]) == [2.5, 40.0]

@@ -34,6 +34,14 @@ def cut_modes(modes: Sequence[float], band: tuple[float, float]) -> list[float]:
     return [f for f in modes if f > fl / EDGE or f < EDGE * fh]
 
 
+def resolvable(modes: Sequence[float], records: Sequence[Recording]) -> list[float]:
+    """The modes with at least 4 cycles in the shortest record: a slower fitted "mode" is
+    not one the records can show (fresh seed 13007: a 0.08 Hz one set a 0.04 Hz
+    high-pass and the diagnosis failed), so the band never reaches below them."""
+    floor_hz = 4.0 / min(float(r.time[-1] - r.time[0]) for r in records)
+    return [f for f in modes if f >= floor_hz]
+
+
 def _modes(structure: Structure, fit: NominalFit) -> list[float]:
     try:
         return [f for f in structure.linear_modes(fit.theta)["frequency_hz"] if f > 0]
@@ -47,7 +55,7 @@ def _covers(records: Sequence[Recording], dofs: Sequence[str], first: NominalFit
     """The bands to try, as ``Processing.auto``'s ``cover`` (lowest, highest) frequency."""
     nyq = min(r.fs for r in records) / 2
     out: list[tuple[str, tuple[float, float]]] = []
-    modes = _modes(structure, first) if first is not None else []
+    modes = resolvable(_modes(structure, first) if first is not None else [], records)
     if modes and proc.bandpass is not None and cut_modes(modes, proc.bandpass):
         out.append((COVER, (min(modes), min(max(modes), 0.4 * nyq))))
     if first is None or first.train_cost > settings.nominal_poor:
