@@ -13,7 +13,7 @@ effects, records and splits, so that the diagnosis is judged on cases nobody tun
   dissipative laws, a share of m w1^2 for the restoring ones, ``benchmarks/matrix.py``'s
   rule) log-uniform over a factor 30, then measured against the noise: ``visibility`` =
   RMS of the acceleration change the effect makes on the validation records / RMS of the
-  white noise; the size is then rescaled (up to four simulations) towards a visibility
+  white noise; the size is then rescaled (up to four times, each new size measured) towards a visibility
   drawn log-uniform in 3-60 x (sizes from 3 x noise to strong); an effect that diverges
   or never shows (< 1 x) is dropped.  Sensor faults: gain 0.8-0.93 or 1.07-1.2, delay 1-3 samples.
 * **records**: 3-4 hammer amplitudes in all, two train and one or two validation records
@@ -262,7 +262,10 @@ def draw(seed: int) -> Scenario:
     targets = [math.exp(rng.uniform(math.log(3.0), math.log(60.0))) for _ in effects]
     for n_e, (kind, place, coeffs) in enumerate(effects):
         vis_max = math.nan
-        for _step in range(4):
+        # four rescalings at most, each one measured: the last size is the one recorded
+        # (it used to be rescaled after its last measurement, so the recorded visibility
+        # was that of the size before, e.g. seed 5003's effects at 2.0 and 1.9 x)
+        for _step in range(5):
             vis = []
             for p in val_peaks:
                 base = clean([], p)
@@ -274,7 +277,7 @@ def draw(seed: int) -> Scenario:
                 coeffs = {k: (x * 0.3 if k != "gap" else x) for k, x in coeffs.items()}
                 continue
             ratio = targets[n_e] / max(vis_max, 1e-3)
-            if 0.7 < ratio < 1.4:
+            if 0.7 < ratio < 1.4 or _step == 4:
                 break
             step = float(np.clip(ratio, 0.1, 10.0))
             if kind == "clearance":  # a contact that never closes: a smaller gap first

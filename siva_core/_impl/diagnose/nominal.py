@@ -51,6 +51,23 @@ def _dissipative(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
     return th if changed else None
 
 
+def linear_part(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
+    """``theta`` with the force-scaling coefficients of the model's nonlinear elements
+    (every kind but spring and damper) set to zero, or None when there are none: a start
+    that cannot diverge through a wrongly signed nonlinearity."""
+    free = list(structure.free)
+    th = np.array(theta, float)
+    changed = False
+    for el in structure.elements:
+        if el.kind.name in ("spring", "damper"):
+            continue
+        for coeff, p in zip(el.kind.coefficients, el.params):
+            if coeff in el.kind.linear and p in free and th[free.index(p)] != 0:
+                th[free.index(p)] = 0.0
+                changed = True
+    return th if changed else None
+
+
 @dataclass
 class NominalFit:
     """The nominal output-error fit and the equation-error fit it started from (kept for
@@ -107,12 +124,21 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
     if not starts:
         raise ValueError("diagnose: no usable start for the nominal fit (least squares gave "
                          "nothing plausible); pass initial values")
-    costs = []
-    for _, th, _ in starts:
+    def cost_of(th: np.ndarray) -> float:
         try:
-            costs.append(float(output_error(structure, th[None], list(train), proc)[0]))
+            return float(output_error(structure, th[None], list(train), proc)[0])
         except Exception:  # noqa: BLE001 - a start that cannot be simulated is skipped
-            costs.append(math.inf)
+            return math.inf
+
+    costs = [cost_of(th) for _, th, _ in starts]
+    if not any(np.isfinite(costs)):
+        # every start diverges: their linear part (issue 16: least squares gave a known
+        # cubic spring k3 = -1.1e10, a softening that escapes, where the truth is +8e7)
+        for label, th, chain in list(starts):
+            lin = linear_part(structure, th)
+            if lin is not None:
+                starts.append((f"{label}, linear part", lin, chain))
+                costs.append(cost_of(lin))
     best = int(np.argmin(costs))
     if not np.isfinite(costs[best]):
         raise ValueError("diagnose: the nominal model diverges from every start")

@@ -77,6 +77,9 @@ class DiagnoseSettings:
         tentatively is named with a second one only when together they close at least
         this share of the gap (measured: a wrong pair built that way closed 0.77, right
         pairs close 0.99+).
+    nominal_poor: a nominal fit leaving more than this share of its train records' energy
+        (train cost) is fitted again in the widest band (``band.fit_nominal_in_band``): a
+        band that cuts a mode leaves the nominal unable to follow its own records.
     stop_ratio: early stop (speed): a candidate fit whose train cost on the full records
         is still above this multiple of the best train cost fitted so far in its stage,
         ``stop_after`` iterations into its full-record stage, ends there: it cannot win
@@ -121,7 +124,8 @@ class DiagnoseSettings:
     tentative_closure: float = 0.8
     stop_ratio: float = 10.0
     stop_after: int = 2
-    max_effects: int = 2
+    nominal_poor: float = 0.1
+    max_effects: int = 3
     sensors: bool = True
     effects: Sequence[str] | None = None
     nominal_start: Mapping[str, float] | None = None

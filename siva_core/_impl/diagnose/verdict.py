@@ -78,8 +78,16 @@ def _consistent(top: Candidate, tolerance: float) -> bool:
 
 
 def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float | None,
-           settings: DiagnoseSettings) -> tuple[Candidate | None, dict[str, Any]]:
-    """The documented verdict rule (module doc, step 5); returns (verdict, checks)."""
+           settings: DiagnoseSettings, later: bool = False
+           ) -> tuple[Candidate | None, dict[str, Any]]:
+    """The documented verdict rule (module doc, step 5); returns (verdict, checks).
+
+    ``later``: a stage after a named effect.  Its gap is what that effect leaves, judged
+    against the noise only (``noise_factor`` x the floor), not against ``gap_min`` or the
+    faint-effect rules, which decide whether there is a gap at all (issue 16: a damper
+    m1-m3 closing 0.76 of the 0.0025 a clearance left, 4 x the noise, was refused by
+    the fixed floor).  The set comparison (``sets.choose_set``) still requires every
+    member to remove ``step_min`` of what the others leave and to show above the noise."""
     rule: dict[str, Any] = {"closure_min": settings.closure_min,
                             "separation": settings.separation,
                             "record_tolerance": settings.record_tolerance,
@@ -115,7 +123,7 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                       for c in look_alikes]
     checks = {
         # a gap below gap_min counts only when the candidate closes most of it (faint)
-        "above_noise": bool((gap_before > settings.gap_min
+        "above_noise": bool((later or gap_before > settings.gap_min
                              or top.closure >= settings.faint_closure
                              or (noise_floor is not None and noise_floor > 0
                                  and gap_before >= settings.faint_noise * noise_floor

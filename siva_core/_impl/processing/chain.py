@@ -102,7 +102,7 @@ class Processing:
 
     @classmethod
     def auto(cls, recordings: Recording | Iterable[Recording], dofs: Sequence[str],
-             **overrides: Any) -> "Processing":
+             cover: tuple[float, float] | None = None, **overrides: Any) -> "Processing":
         """A chain chosen from the data, for records never seen before.
 
         The rule (also in docs/formats.md) is :func:`.auto.auto_settings`'s: every state
@@ -110,9 +110,10 @@ class Processing:
         notches for stationary lines, the integration high-pass, the decimation and the
         start after an impact.
 
+        ``cover`` = (lowest, highest) frequency the band must keep (see ``auto_settings``).
         ``overrides`` replace any chosen setting.  The analysis is kept in ``summary``.
         """
-        chosen = auto_settings(recordings, dofs, cls.impact_threshold)
+        chosen = auto_settings(recordings, dofs, cls.impact_threshold, cover)
         if chosen is None:
             return cls(**overrides)
         settings, summary = chosen

@@ -1,0 +1,43 @@
+"""The diagnosis's stages after a first named effect (issue 16): when a further effect is
+looked for, and how its stage is judged."""
+from __future__ import annotations
+
+from siva_core._impl.diagnose import DiagnoseSettings
+
+
+def test_a_second_stage_runs_when_the_first_effect_leaves_more_than_the_noise():
+    """Stopping after one effect needs a leftover below gap_min *and* within
+    kind_check_noise x the noise floor (issue 16: a clearance left 0.0025, 4 x the noise,
+    and the damper of the pair was never looked for); the old rule stopped on gap_min."""
+    from siva_core import EFFECTS
+    from siva_core._impl.diagnose import Candidate, Location
+    from siva_core._impl.diagnose.run import _explained
+
+    v = Candidate(EFFECTS["clearance"], Location(0, -1, ("m1", "ground")), {}, fitted=True,
+                  gap_before=0.0177, gap_after=0.0025, closure=0.857)
+    s = DiagnoseSettings()
+    assert v.gap_after <= s.gap_min                      # the old rule stopped here
+    assert not _explained(v, s, noise=6e-4)              # 4 x the noise: look further
+    assert _explained(v, s, noise=1e-3)                  # 2.5 x the noise: explained
+    assert _explained(v, s, noise=None)
+    v.gap_after = 0.006
+    assert not _explained(v, s, noise=1e-2)              # above gap_min
+
+
+def test_a_later_stage_is_judged_against_the_noise_not_the_fixed_floor():
+    """What a named effect leaves (0.0025, 4 x the noise floor) is below gap_min; a second
+    effect closing 76 % of it is named at a later stage, not at the first (issue 16)."""
+    from siva_core import EFFECTS
+    from siva_core._impl.diagnose import Candidate, Location
+    from siva_core._impl.diagnose.verdict import decide
+
+    c = Candidate(EFFECTS["damper"], Location(0, 2, ("m1", "m3")), {}, fitted=True,
+                  gap_before=0.0025, gap_after=0.0006, closure=0.76)
+    c.per_record = [{"record": "r", "gap_before": 0.0025, "gap_after": 0.0006,
+                     "closure": 0.76}]
+    first, rule = decide([c], 0.0025, 6e-4, DiagnoseSettings())
+    assert first is None and not rule["checks"]["above_noise"]
+    later, _ = decide([c], 0.0025, 6e-4, DiagnoseSettings(), later=True)
+    assert later is c
+    at_noise, _ = decide([c], 0.0025, 2e-3, DiagnoseSettings(), later=True)
+    assert at_noise is None                              # below 2 x the noise floor
