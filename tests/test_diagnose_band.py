@@ -79,3 +79,13 @@ def test_a_mode_too_slow_for_the_records_is_not_kept_in_the_band():
     t = np.arange(0, 2.0, 1 / 256)
     rec = Recording(t, {"acc_x": np.zeros_like(t)})
     assert resolvable([0.08, 1.9, 2.5, 40.0], [rec]) == [2.5, 40.0]
+
+
+def test_a_mode_too_slow_for_the_record_has_no_track():
+    from siva_core._impl.diagnose.signatures import _mode_track
+
+    fs = 256.0
+    t = np.arange(0, 2.0, 1 / fs)
+    x = np.sin(2 * np.pi * 20 * t) * np.exp(-t)
+    assert _mode_track(x, fs, 20.0) is not None
+    assert _mode_track(x, fs, 0.08) is None  # fresh seed 13007 crashed here (IndexError)
