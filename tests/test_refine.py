@@ -113,16 +113,21 @@ def test_a_set_simulated_alone_or_in_a_batch_gives_the_same_residuals(
 
 
 # ------------------------------------------------------------------ the chain
-def test_output_error_removes_the_chain_bias(lono_model: Structure, lono_truth: np.ndarray) -> None:
-    """Noise-free accelerations through the paper's chain: equation error would be biased
-    (data README), output error through the same chain is exactly zero at the truth."""
-    fs = 2048.0
-    t = np.arange(4 * 2048 + 1) / fs
+def _lono_hit(model: Structure, truth: np.ndarray, fs: float, seconds: int):
+    """(time, force, simulation) of LO-NO hit on NO by a 530 N, 6.2 ms half-sine at 0.1 s,
+    the force read as straight lines between its samples."""
+    t = np.arange(int(seconds * fs) + 1) / fs
     F = np.zeros((len(t), 2))
     tau = t - 0.1
     on = (tau >= 0) & (tau <= 0.0062)
     F[on, 1] = 530.0 * np.sin(np.pi * tau[on] / 0.0062)
-    sim = simulate(lono_model, lono_truth, t, np.zeros(2), np.zeros(2), F, substeps=4)
+    return t, F, simulate(model, truth, t, np.zeros(2), np.zeros(2), F, substeps=4)
+
+
+def test_output_error_removes_the_chain_bias(lono_model: Structure, lono_truth: np.ndarray) -> None:
+    """Noise-free accelerations through the paper's chain: equation error would be biased
+    (data README), output error through the same chain is exactly zero at the truth."""
+    t, F, sim = _lono_hit(lono_model, lono_truth, fs=2048.0, seconds=4)
     rec = Recording(t, {"acc_LO": sim.a[:, 0], "acc_NO": sim.a[:, 1], "force_NO": F[:, 1]}, "syn")
     proc = Processing.paper()
     off = lono_truth * np.array([1.0, 1.0, 1.3, 1.0, 1.0, 1.0])  # b2 +30 %
@@ -141,13 +146,7 @@ def test_force_profiled_cost_is_not_fooled_by_a_force_error(lono_model: Structur
     """A force channel 3 % high: plain output error prefers parameters that absorb the
     error to the truth (so ``best`` once discarded a right refinement for a wrong basin,
     issue 20); with one force multiplier fitted per record the truth wins again, exactly."""
-    fs = 1024.0
-    t = np.arange(2 * 1024 + 1) / fs
-    F = np.zeros((len(t), 2))
-    tau = t - 0.1
-    on = (tau >= 0) & (tau <= 0.0062)
-    F[on, 1] = 530.0 * np.sin(np.pi * tau[on] / 0.0062)
-    sim = simulate(lono_model, lono_truth, t, np.zeros(2), np.zeros(2), F, substeps=4)
+    t, F, sim = _lono_hit(lono_model, lono_truth, fs=1024.0, seconds=2)
     rec = Recording(t, {"acc_LO": sim.a[:, 0], "acc_NO": sim.a[:, 1],
                         "force_NO": 1.03 * F[:, 1]}, "force 3 % high")
     proc = Processing.paper()

@@ -5,9 +5,11 @@ Threads are sequenced with events and by waiting until the queue shows the waite
 the tests do not depend on this CPU's speed."""
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from types import SimpleNamespace
+from typing import Callable, Iterator
 
 from service.trainer.priority import ANCHOR, BEST, MONITOR, VALIDATION, RefineQueue
 
@@ -27,6 +29,34 @@ def _waiter(q: RefineQueue, level: int, order: list[int], **kw) -> threading.Thr
     t = threading.Thread(target=run, daemon=True)
     t.start()
     return t
+
+
+def _refiner(refiner_mod, events: list[str], step: Callable[[], bool], headline_theta):
+    """A Refiner for system "s" whose per-record fit is ``step``; errors land in ``events``."""
+    return refiner_mod.Refiner("s", structure=None, on_best=lambda *a: None,
+                               on_anchor=lambda a: None, on_verdicts=lambda *a: None,
+                               on_error=lambda m: events.append(f"error {m}"),
+                               headline_theta=headline_theta, step=step)
+
+
+@contextlib.contextmanager
+def _held_by_another_system(q: RefineQueue, level: int) -> Iterator[threading.Event]:
+    """Another system's work holding the queue's slot at ``level`` until the yielded event
+    is set (set on exit too)."""
+    done, started = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with q.hold(level):
+            started.set()
+            done.wait(10)
+    blocker = threading.Thread(target=hold, daemon=True)
+    blocker.start()
+    started.wait(10)
+    try:
+        yield done
+    finally:
+        done.set()
+        blocker.join(5)
 
 
 def test_the_most_urgent_waiter_gets_the_slot_first():
@@ -182,37 +212,22 @@ def test_a_waiting_reanchor_gives_way_to_its_systems_new_record_then_runs_at_the
         events.append("fit")
         return True
 
-    r = refiner_mod.Refiner("s", structure=None, on_best=lambda *a: None,
-                            on_anchor=lambda a: None, on_verdicts=lambda *a: None,
-                            on_error=lambda m: events.append(f"error {m}"),
-                            headline_theta=lambda: headline[0], step=step)
-    ds = DataSet(1, 0, ("a",), ("b",), None)
-    job = RefineJob("anchor", ds, 0, (), (), 0, 0)
+    r = _refiner(refiner_mod, events, step, lambda: headline[0])
+    job = RefineJob("anchor", DataSet(1, 0, ("a",), ("b",), None), 0, (), (), 0, 0)
     q = refiner_mod.REFINE_LOCK
-    other_fit_done = threading.Event()
-    other_fit_started = threading.Event()
-
-    def other_systems_fit() -> None:
-        with q.hold(MONITOR):
-            other_fit_started.set()
-            other_fit_done.wait(10)
-    blocker = threading.Thread(target=other_systems_fit, daemon=True)
-    blocker.start()
-    other_fit_started.wait(10)
-    r.start()
-    try:
-        r.submit(job)
-        _until(lambda: any(k[0] == ANCHOR for k in q._waiting))   # the re-anchor waits
-        due["records"] = 1
-        r.poke()                                                    # a record arrives
-        _until(lambda: events == ["fit"])     # only possible if the re-anchor gave way
-        other_fit_done.set()
-        _until(lambda: len(events) == 2)
-        assert events == ["fit", "anchor 2.0"]                      # once, at the new headline
-    finally:
-        other_fit_done.set()
-        r.stop(5.0)
-        blocker.join(5)
+    with _held_by_another_system(q, MONITOR) as other_fit_done:
+        r.start()
+        try:
+            r.submit(job)
+            _until(lambda: any(k[0] == ANCHOR for k in q._waiting))   # the re-anchor waits
+            due["records"] = 1
+            r.poke()                                                    # a record arrives
+            _until(lambda: events == ["fit"])     # only possible if the re-anchor gave way
+            other_fit_done.set()
+            _until(lambda: len(events) == 2)
+            assert events == ["fit", "anchor 2.0"]                  # once, at the new headline
+        finally:
+            r.stop(5.0)
 
 
 def test_a_waiting_validation_gives_way_to_its_systems_new_record(monkeypatch):
@@ -236,32 +251,19 @@ def test_a_waiting_validation_gives_way_to_its_systems_new_record(monkeypatch):
         events.append("fit")
         return True
 
-    r = refiner_mod.Refiner("s", structure=None, on_best=lambda *a: None,
-                            on_anchor=lambda a: None, on_verdicts=lambda *a: None,
-                            on_error=lambda m: events.append(f"error {m}"),
-                            headline_theta=lambda: None, step=step)
+    r = _refiner(refiner_mod, events, step, lambda: None)
     job = ValidationJob(DataSet(1, 0, ("a",), ("b",), None), (), np.array([1.0]), None, (1,))
     q = refiner_mod.REFINE_LOCK
-    other_done, other_started = threading.Event(), threading.Event()
-
-    def other_systems_anchor() -> None:
-        with q.hold(ANCHOR):
-            other_started.set()
-            other_done.wait(10)
-    blocker = threading.Thread(target=other_systems_anchor, daemon=True)
-    blocker.start()
-    other_started.wait(10)
-    r.start()
-    try:
-        r.submit_validation(job)
-        _until(lambda: any(k[0] == VALIDATION for k in q._waiting))  # the validation waits
-        due["records"] = 1
-        r.poke()                                                     # a record arrives
-        _until(lambda: events == ["fit"])     # only possible if the validation gave way
-        other_done.set()
-        _until(lambda: len(events) == 2)
-        assert events == ["fit", "validate headline"]
-    finally:
-        other_done.set()
-        r.stop(5.0)
-        blocker.join(5)
+    with _held_by_another_system(q, ANCHOR) as other_done:
+        r.start()
+        try:
+            r.submit_validation(job)
+            _until(lambda: any(k[0] == VALIDATION for k in q._waiting))  # validation waits
+            due["records"] = 1
+            r.poke()                                                  # a record arrives
+            _until(lambda: events == ["fit"])     # only possible if the validation gave way
+            other_done.set()
+            _until(lambda: len(events) == 2)
+            assert events == ["fit", "validate headline"]
+        finally:
+            r.stop(5.0)

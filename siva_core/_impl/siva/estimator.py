@@ -183,10 +183,8 @@ class Siva:
             # 64+ is assumed to sit farther away -- an assumption, not re-measured)
             t0 = time.perf_counter()
             mean_II = samples_II.mean(0)
-            gap = np.abs(mean_II - best)
-            same_basin = (best_std is not None and np.all(np.isfinite(best_std))
-                          and np.all(gap <= 3.0 * np.asarray(best_std))
-                          and np.all(gap <= 5e-3 * np.abs(best)))
+            same_basin = (_within_se(mean_II, best, best_std)
+                          and np.all(np.abs(mean_II - best) <= 5e-3 * np.abs(best)))
             better = None if same_basin else rerefine(st, best, mean_II, train, val, proc)
             if better is not None:
                 rec, best, best_std = better, better.theta, better.std
@@ -194,9 +192,8 @@ class Siva:
                 notes.append("best: refined again from Approach II's mean (lower output error "
                              "than the first refinement)")
             timing["refine"] += time.perf_counter() - t0
-        if (settings.fit_target == "output" and best_std is not None
-                and np.all(np.isfinite(best_std)) and len(samples_II)
-                and np.all(np.abs(samples_II.mean(0) - best) <= 3.0 * np.asarray(best_std))):
+        if (settings.fit_target == "output" and len(samples_II)
+                and _within_se(samples_II.mean(0), best, best_std)):
             # same basin: Approach II's interval is never narrower than best's bootstrap
             summ_II = widened_to(summ_II, names, np.asarray(best_std))
         if settings.fit_target == "output":
@@ -240,3 +237,12 @@ class Siva:
             trainer.discriminator_scores(), metrics, timing, baselines, proc, notes, summ_ee,
             None if rec.std is None or rec.refine_result is None else rec.refine_result.cov)
         return self
+
+
+def _within_se(mean: np.ndarray, best: np.ndarray, best_std: np.ndarray | None,
+               k: float = 3.0) -> bool:
+    """Whether ``mean`` lies within ``k`` of ``best``'s standard errors of it on every
+    parameter (the same basin), False when ``best`` has no finite standard errors."""
+    if best_std is None or not np.all(np.isfinite(best_std)):
+        return False
+    return bool(np.all(np.abs(mean - best) <= k * np.asarray(best_std)))
