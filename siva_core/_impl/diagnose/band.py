@@ -49,7 +49,7 @@ def _modes(structure: Structure, fit: NominalFit) -> list[float]:
         return []
 
 
-def _covers(records: Sequence[Recording], dofs: Sequence[str], first: NominalFit | None,
+def _covers(records: Sequence[Recording], first: NominalFit | None,
             structure: Structure, proc: Processing, settings: DiagnoseSettings
             ) -> list[tuple[str, tuple[float, float]]]:
     """The bands to try, as ``Processing.auto``'s ``cover`` (lowest, highest) frequency."""
@@ -81,7 +81,7 @@ def fit_nominal_in_band(structure: Structure, train: Sequence[Recording],
         if best is None:
             raise failure  # type: ignore[misc]
         return proc, best
-    for why, cover in _covers(records, structure.dofs, best, structure, proc, settings):
+    for why, cover in _covers(records, best, structure, proc, settings):
         if why != COVER and best is not None and best.train_cost <= settings.nominal_poor:
             continue  # the band that keeps the modes already fits
         try:
