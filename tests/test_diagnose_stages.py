@@ -11,7 +11,7 @@ def test_a_second_stage_runs_when_the_first_effect_leaves_more_than_the_noise():
     and the damper of the pair was never looked for); the old rule stopped on gap_min."""
     from siva_core import EFFECTS
     from siva_core._impl.diagnose import Candidate, Location
-    from siva_core._impl.diagnose.run import _explained
+    from siva_core._impl.diagnose.stage import _explained
 
     v = Candidate(EFFECTS["clearance"], Location(0, -1, ("m1", "ground")), {}, fitted=True,
                   gap_before=0.0177, gap_after=0.0025, closure=0.857)

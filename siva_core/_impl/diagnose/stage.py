@@ -1,0 +1,267 @@
+"""One stage of the diagnosis: screen, scan and fit candidates (structural and sensor)
+from the model so far, judge them on the validation records, and add the effect that is
+significant; with the helpers that refresh, polish and judge what a stage named."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..effects import Effect
+from ..processing import Processing
+from ..recording import Recording
+from ..structure import Structure
+from .early_stop import cannot_win
+from .fitting import continue_fit, fit_candidate, scan_candidate
+from .nominal import NominalFit
+from .outputs import Progress, _say
+from .results import Candidate
+from .scoring import judge as _judge
+from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
+                        select_for_fit)
+from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
+from .settings import DiagnoseSettings
+from .verdict import look_alike
+
+Fraction = Callable[[float], None]
+
+
+def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
+             settings: DiagnoseSettings) -> bool:
+    """The best candidate was refused for its size or for a rival of another kind, not for
+    noise or inconsistency, and closes at least ``settings.step_min`` of the gap: possibly
+    one of several effects (with two real effects the other one *is* a rival of another
+    kind, measured: coulomb m1-ground + velocity-squared damper m3-ground on the chain,
+    closure 0.30, separation failed), or for a record it leaves worse (issue 16: the right
+    coulomb LO-ground closed 0.73 but left the 899 N record 51 x worse, the second effect
+    missing).  It is kept tentatively; the set is named only if the
+    final rule passes on it (and the backward step keeps it)."""
+    checks = rule.get("checks") or {}
+    return bool(ranking and checks and checks["above_noise"]
+                and not (checks["closure"] and checks["separation"] and checks["consistent"])
+                and ranking[0].closure >= settings.step_min)
+
+
+def _refresh(verdicts: Sequence[Candidate]) -> None:
+    """Earlier structural effects were re-fitted jointly with the later ones: report their
+    coefficients from the last fit (their stage-1 intervals no longer apply)."""
+    last = next((v for v in reversed(verdicts) if v.category == "structure"), None)
+    if last is None or last.structure is None or last.theta is None:
+        return
+    values = last.structure.as_dict(last.theta)
+    for v in verdicts:
+        if v is last or v.category != "structure" or not v.names:
+            continue
+        new = {k: values[p] for k, p in v.names.items() if p in values}
+        if new:
+            v.coefficients, v.intervals = new, {}
+
+
+def _explained(v: Candidate, settings: DiagnoseSettings, noise: float | None) -> bool:
+    """No further stage after ``v``: what it leaves is below ``gap_min`` *and* within
+    ``kind_check_noise`` x the spectral noise floor (issue 16: a clearance closing 0.857
+    left 0.0025, below the fixed floor but 4 x the noise, and the missing damper of the
+    pair was never looked for)."""
+    return bool(v.gap_after <= settings.gap_min and (
+        noise is None or v.gap_after <= settings.kind_check_noise * noise))
+
+
+def _polish(v: Candidate, train: Sequence[Recording], val: Sequence[Recording],
+            proc: Processing, settings: DiagnoseSettings, gap: float, blocks: np.ndarray,
+            progress: Progress | None) -> None:
+    """More evaluations for a stage's verdict before the next stage builds on it."""
+    cost = v.train_cost
+    try:
+        continue_fit(v, train, proc, settings.fit_nfev)
+    except Exception as exc:  # noqa: BLE001 - the stage's fit stands
+        _say(progress, f"{v.label()}: polishing fit failed ({exc})")
+        return
+    if v.train_cost < cost:
+        _judge(v, val, proc, gap, blocks, progress)
+
+
+def _combined_closure(verdicts: Sequence[Candidate], gap_before: float) -> float:
+    """Closure of the original gap by all named effects together (the last stage's gap)."""
+    if not verdicts or not gap_before > 0:
+        return 0.0
+    return float(1.0 - verdicts[-1].gap_after / gap_before)
+
+
+def finalists(chosen: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candidate]:
+    """The fitted candidates that get the second round: the ``finalists`` best by train
+    cost, plus any within ``finalist_ratio`` of the best (a close rival must be fitted as
+    well as the leader: the verdict's separation check compares their gaps), plus the
+    best of the leading candidate's best rival kind."""
+    fitted = sorted((c for c in chosen if c.fitted and np.isfinite(c.train_cost)),
+                    key=lambda c: c.train_cost)
+    if not fitted:
+        return []
+    # a fit cut short because it could not come near the leader gets no second round
+    fitted = [c for c in fitted if not c.stopped] or fitted
+    best = fitted[0].train_cost
+    out = [c for k, c in enumerate(fitted)
+           if k < settings.finalists or c.train_cost <= settings.finalist_ratio * best]
+    rival = next((c for c in fitted if c.effect.kind != fitted[0].effect.kind), None)
+    if rival is not None and rival not in out:
+        out.append(rival)
+    return out
+
+
+def _lead(chosen: Sequence[Candidate]) -> Candidate | None:
+    """The fitted candidate with the best validation closure, when it is structural."""
+    best = max((c for c in chosen if c.fitted and np.isfinite(c.closure)),
+               key=lambda c: c.closure, default=None)
+    return best if best is not None and best.category == "structure" else None
+
+
+def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
+           val: Sequence[Recording], proc: Processing, effects: Sequence[Effect],
+           settings: DiagnoseSettings, gap_before: float, before_blocks: np.ndarray,
+           sensors: bool, progress: Progress | None, fraction: Callable[[float], None],
+           timing: dict[str, float], tag: str, noise: float | None = None
+           ) -> list[Candidate]:
+    """One round: screen, scan every candidate's magnitude, fit the chosen ones, score
+    them on the validation records.  Returns the fitted candidates, best closure first."""
+    theta = fit.theta
+    t0 = time.perf_counter()
+    cands, nom = screen(structure, theta, train, proc, effects, progress)
+    ee_screen(structure, fit, train, cands)
+    timing[f"{tag}screening"] = time.perf_counter() - t0
+    fraction(0.15)
+    t0 = time.perf_counter()
+    chosen = select_for_fit(cands, settings)
+    for k, c in enumerate(chosen):
+        try:
+            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
+                           nom.force_scale, nom.jacobian, nom.basis)
+        except Exception as exc:  # noqa: BLE001 - one failed scan must not sink the run
+            c.note = f"scan failed: {exc}"
+        fraction(0.15 + 0.2 * (k + 1) / max(len(chosen), 1))
+    sens = sensor_candidates(structure, train) if sensors else []
+    for c in sens:
+        scan_sensor(c, structure, theta, train, proc, nom.basis)
+    timing[f"{tag}scan"] = time.perf_counter() - t0
+    scanned = sorted((c for c in [*chosen, *sens] if np.isfinite(c.scan_cost)),
+                     key=lambda c: c.scan_cost)
+    _say(progress, f"fitted next: {', '.join(c.label() for c in chosen)}; scans (train cost, "
+                   f"nominal {fit.train_cost:.4g}): "
+                   + ", ".join(f"{c.label()} {c.scan_cost:.4g}" for c in scanned[:8]))
+    chosen += sensor_fits(sens, fit.train_cost, settings)
+    t0 = time.perf_counter()
+    first = dataclasses.replace(settings, fit_nfev=min(settings.first_nfev, settings.fit_nfev))
+
+    def leader_cost() -> float:  # the best fit so far: a later one far above it stops
+        return min((c.train_cost for c in chosen if c.fitted and not c.stopped
+                    and np.isfinite(c.train_cost)), default=math.inf)
+
+    def leader() -> Candidate | None:  # the best structural fit so far
+        return min((c for c in chosen if c.fitted and not c.stopped
+                    and c.category == "structure" and np.isfinite(c.train_cost)),
+                   key=lambda c: c.train_cost, default=None)
+
+    def fit_first(c: Candidate, stop: bool = True) -> bool:
+        try:
+            if c.category == "sensor":
+                fit_sensor(c, structure, theta, train, proc, first)
+            else:
+                c.amplitudes = nom.amplitudes[c.loc.between]
+                fit_candidate(c, structure, theta, train, proc, c.amplitudes, first,
+                              nom.force_scale, fit.train_cost,
+                              leader_cost() if stop else math.inf,
+                              leader() if stop else None)
+            return True
+        except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
+            c.note = f"fit failed: {exc}"
+            _say(progress, f"{c.label()}: fit failed ({exc})")
+            return False
+
+    def fit_more(c: Candidate, stop: bool = True) -> None:
+        try:
+            continue_fit(c, train, proc, settings.fit_nfev - first.fit_nfev,
+                         cannot_win(leader_cost(), settings) if stop else None)
+        except Exception as exc:  # noqa: BLE001 - the first fit stands
+            _say(progress, f"{c.label()}: second round failed ({exc})")
+
+    def judge(c: Candidate) -> None:
+        _judge(c, val, proc, gap_before, before_blocks, progress)
+
+    def rescue(c: Candidate, second: Callable[[Candidate], bool]) -> None:
+        """A fit stopped on the train records that the validation records do not show
+        losing -- within twice the separation margin of the best full fit's gap -- is
+        fitted in full after all (and its second round when ``second`` says so):
+        whatever can name or block a verdict is fitted as without the early stop."""
+        best = min((x.gap_after for x in chosen if x.fitted and not x.stopped
+                    and np.isfinite(x.gap_after)), default=math.inf)
+        if not (c.stopped and np.isfinite(c.gap_after)
+                and c.gap_after * settings.separation < 2.0 * best):
+            return
+        _say(progress, f"{c.label()}: its stopped fit closes {c.closure:.3f} on the "
+                       "validation records: fitted in full")
+        c.stopped, c.note = False, ""
+        if not fit_first(c, stop=False):
+            return
+        if second(c):
+            fit_more(c, stop=False)
+        judge(c)
+
+    # the likely leader first (strongest screening evidence; sensor faults last): the
+    # fits after it that cannot come near it stop early (``early_stop.cannot_win``).  Not
+    # the scan cost: on the cubic damper LO-NO example every scan sits within 8 % of the
+    # nominal cost and ranks the true law fourth; the screen ranks it first.
+    order = sorted(chosen, key=lambda c: (c.category == "sensor", -_strength(c)))
+    for k, c in enumerate(order):
+        fit_first(c)
+        fraction(0.4 + 0.4 * (k + 1) / max(len(chosen), 1))
+    for c in finalists(chosen, settings):
+        fit_more(c)
+    fraction(0.9)
+    for c in (c for c in chosen if c.fitted):
+        judge(c)
+    for c in [c for c in chosen if c.stopped]:
+        rescue(c, lambda x: x in finalists(chosen, settings))
+
+    def unsure(c: Candidate) -> bool:  # leaves part of the gap, or more than the noise
+        return c.closure < settings.kind_check or (
+            noise is not None and c.gap_after > settings.kind_check_noise * noise)
+
+    def fit_extra(c: Candidate, lead: Candidate) -> None:
+        try:
+            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
+                           nom.force_scale, nom.jacobian, nom.basis)
+        except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
+            c.note = f"scan failed: {exc}"
+        chosen.append(c)
+        if not fit_first(c):
+            return
+        if c.train_cost <= settings.finalist_ratio * lead.train_cost:
+            fit_more(c)
+        judge(c)
+        rescue(c, lambda x: x.train_cost <= settings.finalist_ratio * lead.train_cost)
+
+    # the place and the law of the leading structural effect are decided by fits: its
+    # look-alike kinds at its place (when it leaves part of the gap), then its kind at
+    # every other place, then look-alikes again if the place moved
+    lead = _lead(chosen)
+    if settings.place_check and lead is not None and lead.closure >= settings.step_min:
+        # look-alike laws are always fitted beside the leader (issue 16: a cubic damper
+        # NO-ground closing 0.992 was named where a quadratic one was true); every kind
+        # of its role when it leaves part of the gap
+        for c in other_kinds(cands, lead, chosen):
+            if unsure(lead) or look_alike(lead.effect.kind, c.effect.kind):
+                fit_extra(c, lead)
+            lead = _lead(chosen) or lead
+        place = lead.loc.between
+        for c in other_places(cands, lead.effect.kind, chosen):
+            fit_extra(c, lead)
+        lead = _lead(chosen) or lead
+        if lead.loc.between != place and unsure(lead):
+            for c in other_kinds(cands, lead, chosen):
+                fit_extra(c, lead)
+    timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
+    fitted = [c for c in chosen if c.fitted]
+    stage_cands = cands + sens
+    ranking = sorted(fitted, key=lambda c: -c.closure if np.isfinite(c.closure) else math.inf)
+    return ranking, stage_cands
