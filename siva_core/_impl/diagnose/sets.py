@@ -29,6 +29,7 @@ from ..structure import Structure
 from .fitting import _intervals
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
+from .parallel import run_each, worker_count
 from .results import Candidate
 from .scoring import judge
 from .settings import FAST, DiagnoseSettings
@@ -249,13 +250,13 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
         done = {frozenset(m.key for m in o.members) for o in options}
-        for a, b in combinations(members, 2):
-            if frozenset((a.key, b.key)) in done:
-                continue
-            p = fit_pair(a, b, structure, train, val, proc, gap_before, before_blocks,
-                         settings, progress)
-            if p is not None:
-                options.append(p)
+        pairs = [(a, b) for a, b in combinations(members, 2)
+                 if frozenset((a.key, b.key)) not in done]
+        # independent joint fits: on the cores (``parallel.run_each``), kept in order
+        fits = run_each(lambda ab: fit_pair(ab[0], ab[1], structure, train, val, proc,
+                                            gap_before, before_blocks, settings, progress),
+                        pairs, worker_count(settings))
+        options += [p for p in fits if p is not None]
     single_gap = {c.key: c.gap_after for c in ranking if np.isfinite(c.gap_after)}
     cur_gap = verdict.gap_after if verdict is not None else gap_before
     chosen: SetFit | None = None

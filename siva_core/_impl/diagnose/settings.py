@@ -92,6 +92,13 @@ class DiagnoseSettings:
     sensors: also try sensor faults (accelerometer gain, channel delay, force gain).
     effects: names of the effects to try (default: all registered).
     nominal_start: initial values of the nominal parameters (skips the least-squares start).
+    workers: threads for the independent scans, fits and judgements of a step
+        (``parallel.run_each``); 0 = ``$SIVA_DIAGNOSE_WORKERS`` or every core.  The result
+        does not depend on it.
+    fit_wave: the candidate fits after the likely leader run in waves of this many; a
+        wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
+        before it.  A schedule, not a worker count: the result depends on it (a larger
+        wave stops fewer losers) but not on ``workers``.
     """
 
     top_k: int = 4
@@ -129,3 +136,5 @@ class DiagnoseSettings:
     sensors: bool = True
     effects: Sequence[str] | None = None
     nominal_start: Mapping[str, float] | None = None
+    workers: int = 0
+    fit_wave: int = 4

@@ -18,6 +18,7 @@ from .early_stop import cannot_win
 from .fitting import continue_fit, fit_candidate, scan_candidate
 from .nominal import NominalFit
 from .outputs import Progress, _say
+from .parallel import run_each, waves, worker_count
 from .results import Candidate
 from .scoring import judge as _judge
 from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
@@ -27,6 +28,8 @@ from .settings import DiagnoseSettings
 from .verdict import look_alike
 
 Fraction = Callable[[float], None]
+#: (leader's train cost, leader) a wave of fits is stopped against
+Against = tuple[float, "Candidate | None"]
 
 
 def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
@@ -133,16 +136,24 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     fraction(0.15)
     t0 = time.perf_counter()
     chosen = select_for_fit(cands, settings)
-    for k, c in enumerate(chosen):
-        try:
-            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
-                           nom.force_scale, nom.jacobian, nom.basis)
-        except Exception as exc:  # noqa: BLE001 - one failed scan must not sink the run
-            c.note = f"scan failed: {exc}"
-        fraction(0.15 + 0.2 * (k + 1) / max(len(chosen), 1))
+    workers = worker_count(settings)
     sens = sensor_candidates(structure, train) if sensors else []
-    for c in sens:
-        scan_sensor(c, structure, theta, train, proc, nom.basis)
+
+    def scan(c: Candidate) -> None:  # independent of the other scans: on the cores
+        try:
+            if c.category == "sensor":
+                scan_sensor(c, structure, theta, train, proc, nom.basis)
+            else:
+                scan_candidate(c, structure, theta, train, proc,
+                               nom.amplitudes[c.loc.between], nom.force_scale,
+                               nom.jacobian, nom.basis)
+        except Exception as exc:  # noqa: BLE001 - one failed scan must not sink the run
+            if c.category == "sensor":
+                raise
+            c.note = f"scan failed: {exc}"
+
+    run_each(scan, [*chosen, *sens], workers)
+    fraction(0.35)
     timing[f"{tag}scan"] = time.perf_counter() - t0
     scanned = sorted((c for c in [*chosen, *sens] if np.isfinite(c.scan_cost)),
                      key=lambda c: c.scan_cost)
@@ -162,7 +173,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                     and c.category == "structure" and np.isfinite(c.train_cost)),
                    key=lambda c: c.train_cost, default=None)
 
-    def fit_first(c: Candidate, stop: bool = True) -> bool:
+    def fit_first(c: Candidate, stop: bool = True, against: Against | None = None) -> bool:
+        lc, ld = against if against is not None else (leader_cost(), leader())
         try:
             if c.category == "sensor":
                 fit_sensor(c, structure, theta, train, proc, first)
@@ -170,18 +182,18 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                 c.amplitudes = nom.amplitudes[c.loc.between]
                 fit_candidate(c, structure, theta, train, proc, c.amplitudes, first,
                               nom.force_scale, fit.train_cost,
-                              leader_cost() if stop else math.inf,
-                              leader() if stop else None)
+                              lc if stop else math.inf, ld if stop else None)
             return True
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
             _say(progress, f"{c.label()}: fit failed ({exc})")
             return False
 
-    def fit_more(c: Candidate, stop: bool = True) -> None:
+    def fit_more(c: Candidate, stop: bool = True, lc: float | None = None) -> None:
+        lc = leader_cost() if lc is None else lc
         try:
             continue_fit(c, train, proc, settings.fit_nfev - first.fit_nfev,
-                         cannot_win(leader_cost(), settings) if stop else None)
+                         cannot_win(lc, settings) if stop else None)
         except Exception as exc:  # noqa: BLE001 - the first fit stands
             _say(progress, f"{c.label()}: second round failed ({exc})")
 
@@ -210,16 +222,19 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     # the likely leader first (strongest screening evidence; sensor faults last): the
     # fits after it that cannot come near it stop early (``early_stop.cannot_win``).  Not
     # the scan cost: on the cubic damper LO-NO example every scan sits within 8 % of the
-    # nominal cost and ranks the true law fourth; the screen ranks it first.
+    # nominal cost and ranks the true law fourth; the screen ranks it first.  The others
+    # in waves on the cores, each wave against the leader of the waves before it.
     order = sorted(chosen, key=lambda c: (c.category == "sensor", -_strength(c)))
-    for k, c in enumerate(order):
-        fit_first(c)
-        fraction(0.4 + 0.4 * (k + 1) / max(len(chosen), 1))
-    for c in finalists(chosen, settings):
-        fit_more(c)
+    done = 0
+    for wave in waves(order, settings.fit_wave):
+        against = (leader_cost(), leader())
+        run_each(lambda c: fit_first(c, against=against), wave, workers)
+        done += len(wave)
+        fraction(0.4 + 0.4 * done / max(len(chosen), 1))
+    lc = leader_cost()  # the second round's stop: the leader after the first round
+    run_each(lambda c: fit_more(c, lc=lc), finalists(chosen, settings), workers)
     fraction(0.9)
-    for c in (c for c in chosen if c.fitted):
-        judge(c)
+    run_each(judge, [c for c in chosen if c.fitted], workers)
     for c in [c for c in chosen if c.stopped]:
         rescue(c, lambda x: x in finalists(chosen, settings))
 
@@ -227,19 +242,30 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         return c.closure < settings.kind_check or (
             noise is not None and c.gap_after > settings.kind_check_noise * noise)
 
-    def fit_extra(c: Candidate, lead: Candidate) -> None:
-        try:
-            scan_candidate(c, structure, theta, train, proc, nom.amplitudes[c.loc.between],
-                           nom.force_scale, nom.jacobian, nom.basis)
-        except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
-            c.note = f"scan failed: {exc}"
-        chosen.append(c)
-        if not fit_first(c):
-            return
-        if c.train_cost <= settings.finalist_ratio * lead.train_cost:
-            fit_more(c)
-        judge(c)
-        rescue(c, lambda x: x.train_cost <= settings.finalist_ratio * lead.train_cost)
+    def fit_extra(extra: Sequence[Candidate], lead: Candidate) -> None:
+        """Scan, fit and judge ``extra`` beside ``lead``: in waves on the cores, then
+        each one taken into the stage (and rescued) in order."""
+        def one(c: Candidate, against: Against) -> None:
+            try:
+                scan_candidate(c, structure, theta, train, proc,
+                               nom.amplitudes[c.loc.between], nom.force_scale,
+                               nom.jacobian, nom.basis)
+            except Exception as exc:  # noqa: BLE001 - the fit starts without the scan
+                c.note = f"scan failed: {exc}"
+            if not fit_first(c, against=against):
+                return
+            if c.train_cost <= settings.finalist_ratio * lead.train_cost:
+                fit_more(c, lc=against[0])
+            judge(c)
+
+        for wave in waves(extra, settings.fit_wave, first_alone=False):
+            against = (leader_cost(), leader())
+            run_each(lambda c: one(c, against), wave, workers)
+            for c in wave:
+                chosen.append(c)
+                if c.fitted:
+                    rescue(c, lambda x: x.train_cost
+                           <= settings.finalist_ratio * lead.train_cost)
 
     # the place and the law of the leading structural effect are decided by fits: its
     # look-alike kinds at its place (when it leaves part of the gap), then its kind at
@@ -251,15 +277,14 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         # of its role when it leaves part of the gap
         for c in other_kinds(cands, lead, chosen):
             if unsure(lead) or look_alike(lead.effect.kind, c.effect.kind):
-                fit_extra(c, lead)
+                fit_extra([c], lead)
             lead = _lead(chosen) or lead
         place = lead.loc.between
-        for c in other_places(cands, lead.effect.kind, chosen):
-            fit_extra(c, lead)
+        fit_extra(other_places(cands, lead.effect.kind, chosen), lead)
         lead = _lead(chosen) or lead
         if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):
-                fit_extra(c, lead)
+                fit_extra([c], lead)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
     stage_cands = cands + sens
