@@ -41,14 +41,18 @@ def worker_count(settings: DiagnoseSettings) -> int:
 
 def run_each(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
     """``[fn(x) for x in items]``, on up to ``workers`` threads; results in item order.
-    An exception in one task is raised here after the others have finished."""
+    The first exception (in item order) is raised once the running tasks have ended; the
+    tasks not started yet are dropped (a time limit's exception is not held up by them)."""
     todo = list(items)
     if workers <= 1 or len(todo) <= 1:
         return [fn(x) for x in todo]
-    with ThreadPoolExecutor(max_workers=min(workers, len(todo)),
-                            thread_name_prefix="siva-diagnose") as pool:
+    pool = ThreadPoolExecutor(max_workers=min(workers, len(todo)),
+                              thread_name_prefix="siva-diagnose")
+    try:
         futures = [pool.submit(fn, x) for x in todo]
         return [f.result() for f in futures]
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def waves(items: Sequence[T], size: int, first_alone: bool = True) -> list[list[T]]:
