@@ -7,7 +7,8 @@ or fault and channel; nothing missing, nothing more).  Rates are reported per ca
 those at >= 5 x.  Each row has the wall time, the process CPU time and the 1-minute load
 average at the end of the case (the machine is shared: the wall time depends on the load).
 
-Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]``
+Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
+[--limit WALL_S | --cpu-limit CPU_S]``
 (``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs).
 Seeds used for development are listed in docs/diagnosis.md; a reported rate must come from
 seeds never run before the rules were frozen.
@@ -39,6 +40,11 @@ class CaseTimeout(BaseException):  # not swallowed by the diagnosis's per-candid
 
 def _timeout(signum: int, frame: Any) -> None:
     raise CaseTimeout("over the time limit")
+
+
+def _disarm() -> None:
+    signal.alarm(0)
+    signal.setitimer(signal.ITIMER_PROF, 0.0)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -131,6 +137,10 @@ def main() -> int:
     ap.add_argument("--summarise", metavar="FILES")
     ap.add_argument("--limit", type=float, default=0.0,
                     help="seconds of wall time per case; a case over it counts as wrong")
+    ap.add_argument("--cpu-limit", type=float, default=0.0,
+                    help="CPU seconds of the process per case (every thread counted; fair on a "
+                         "shared machine, where wall time depends on the others' load); a case "
+                         "over it counts as wrong")
     args = ap.parse_args()
     if args.summarise:
         rows = [r for f in args.summarise.split(",") for r in json.loads(Path(f).read_text())]
@@ -138,22 +148,26 @@ def main() -> int:
         return 0
     rows: list[dict[str, Any]] = []
     signal.signal(signal.SIGALRM, _timeout)
+    signal.signal(signal.SIGPROF, _timeout)
     for seed in parse_seeds(args.seeds):
         sc = None
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             sc = scenarios.draw(seed)
             print(scenarios.describe(sc), flush=True)
             if args.limit:
                 signal.alarm(int(args.limit))
+            if args.cpu_limit:
+                signal.setitimer(signal.ITIMER_PROF, args.cpu_limit)
             row = run(sc, args.verbose)
-            signal.alarm(0)
+            _disarm()
         except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
-            signal.alarm(0)
+            _disarm()
             row = {"seed": seed, "category": sc.category if sc is not None else "error",
                    "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
                    "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
-                   "visibility": sc.visibility if sc else [], "time_s": float(args.limit),
-                   "cpu_s": 0.0, "load1": os.getloadavg()[0], "reason": str(exc)}
+                   "visibility": sc.visibility if sc else [],
+                   "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "load1": os.getloadavg()[0], "reason": str(exc)}
         rows.append(row)
         print(f"  -> {'OK ' if row['complete'] else 'NO '} named {row['named']} "
               f"({row['time_s']:.0f} s wall, {row['cpu_s']:.0f} s CPU, load {row['load1']:.1f}; "
