@@ -27,6 +27,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .fitting import _intervals
+from .joint_sensor import retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
 from .results import Candidate
@@ -86,6 +87,11 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
                 starts.append(aug.vector({**vals_a, **{p: v for p, v in nom_b.items()
                                                        if p in vals_a}}))
             theta, cost, res = _refit(aug, starts, recs, proc, settings.fit_nfev)
+            # the fault's value re-fitted with the structural model (joint_sensor's doc:
+            # fitted with the nominal model alone it absorbs part of the other effect)
+            again = retune_sensor(b, aug, theta, train, proc, max(10, settings.fit_nfev // 2))
+            if again is not None:
+                b, theta, cost, res = again
             out = SetFit(a.effect, a.loc, dict(a.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=a.amplitudes,
                          members=[a, b], sensor=b)
@@ -229,10 +235,13 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                ranking: Sequence[Candidate], structure: Structure,
                train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
                gap_before: float, before_blocks: np.ndarray, noise: float | None,
-               settings: DiagnoseSettings, progress: Progress | None = None
+               settings: DiagnoseSettings, progress: Progress | None = None,
+               later: Sequence[Candidate] = ()
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
-    validation gaps (module doc); returns (verdict, named effects, rule entries)."""
+    validation gaps (module doc); returns (verdict, named effects, rule entries).
+    ``later``: structural candidates of the stages after a named sensor fault, each
+    paired with that fault (its value re-fitted with them: ``joint_sensor``)."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -249,9 +258,12 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
         done = {frozenset(m.key for m in o.members) for o in options}
-        for a, b in combinations(members, 2):
+        sensor = next((v for v in verdicts if v.category == "sensor"), None)
+        extra = [(c, sensor) for c in later if sensor is not None]
+        for a, b in [*combinations(members, 2), *extra]:
             if frozenset((a.key, b.key)) in done:
                 continue
+            done.add(frozenset((a.key, b.key)))
             p = fit_pair(a, b, structure, train, val, proc, gap_before, before_blocks,
                          settings, progress)
             if p is not None:
@@ -313,3 +325,17 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         rule["combined_closure"] = float(verdict.closure)
         return verdict, [verdict], rule
     return None, [], rule
+
+
+def after_sensor(ranking: Sequence[Candidate], train_cost: float,
+                 settings: DiagnoseSettings) -> list[Candidate]:
+    """A later stage's structural fits worth pairing with the sensor fault named before
+    it: the ``pair_members`` best by train cost (one per kind and place) that lower the
+    stage's starting train cost by ``step_min`` / 2 at least.  Their *validation* closure
+    says little: they were fitted on records corrected with the fault's value fitted
+    without them (joint_sensor's doc: the clearance of seed 13010 closed -0.37)."""
+    fits = sorted((c for c in ranking if c.category == "structure" and c.fitted
+                   and np.isfinite(c.train_cost)
+                   and c.train_cost <= (1 - settings.step_min / 2) * train_cost),
+                  key=lambda c: c.train_cost)
+    return fits[:settings.pair_members]
