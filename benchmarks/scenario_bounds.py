@@ -36,7 +36,7 @@ from siva_core import EFFECTS, Structure, with_effect
 DOMINANCE = 0.5
 FRICTION_SHARE = 0.3
 ZETA_MAX = 0.25
-TRAIN_VISIBLE = 1.0
+TRAIN_VISIBLE = 3.0
 DAMPERS = ("damper", "quadratic_damper", "cubic_damper")
 
 

@@ -278,6 +278,8 @@ def draw(seed: int) -> Scenario:
     K = bounds.stiffness(spec, truth)
     q_small = np.asarray(_response(st, truth, t, kf, min(peaks), width)[0].q)
 
+    checked: dict[tuple[str, str], dict[str, float]] = {}  # what the bounds measured
+
     def within_bounds(kind: str, place: tuple[str, str],
                       coeffs: dict[str, float]) -> dict[str, float] | None:
         idx = [dofs.index(x) for x in place if x != "ground"]
@@ -297,7 +299,10 @@ def draw(seed: int) -> Scenario:
                 factor = float(np.clip(0.9 / over, 0.1, 0.9)) if np.isfinite(over) else 0.3
                 coeffs = bounds.shrink(kind, coeffs, factor)
                 continue
-            if vis_of(kind, place, coeffs, train_peaks) >= bounds.TRAIN_VISIBLE:
+            seen = vis_of(kind, place, coeffs, train_peaks)
+            if seen >= bounds.TRAIN_VISIBLE:
+                checked[place] = {"dominance": max(changes(coeffs)),
+                                  "train_visibility": seen, "elastic_small": elastic}
                 return coeffs
             # it never shows on the train records (a contact those amplitudes never
             # close): nothing fitted to them can find it -- a smaller gap, or larger
@@ -382,7 +387,8 @@ def draw(seed: int) -> Scenario:
             "modes_hz": [float(f"{x:.4g}") for x in modes], "fs": fs, "pulse_s": width,
             "duration_s": duration, "train_peaks": train_peaks, "val_peaks": val_peaks,
             "noise": noise, "coloured": coloured, "hum": hum, "hum_hz": hum_f,
-            "force_dof": force_dof, "nominal_nonlinear": any(p.startswith("knl_") for p in truth)}
+            "force_dof": force_dof, "nominal_nonlinear": any(p.startswith("knl_") for p in truth),
+            "bounds": [checked.get(place, {}) for _, place, _ in effects]}
     return Scenario(seed, nominal, truth, force_dof, effects, fault, train, val,
                     visibility, info)
 
