@@ -16,6 +16,14 @@ effects, records and splits, so that the diagnosis is judged on cases nobody tun
   white noise; the size is then rescaled (up to four times, each new size measured) towards a visibility
   drawn log-uniform in 3-60 x (sizes from 3 x noise to strong); an effect that diverges
   or never shows (< 1 x) is dropped.  Sensor faults: gain 0.8-0.93 or 1.07-1.2, delay 1-3 samples.
+* **bounds on every record** (``scenario_bounds``, issue 16 third round): then every effect
+  is shrunk until, on *every* record (train and validation), it changes the accelerations
+  by at most 0.5 of their RMS, a coulomb's fc is at most 0.3 x the peak spring force the
+  smallest record's hit produces at its place, and no mode's damping ratio (a damper's
+  equivalent linear coefficient at the largest record's velocity added) exceeds 0.25; and
+  grown until it shows >= 3 x the noise on the larger train record (an effect the train
+  records never see is found by no method).  The bounds win over the drawn visibility;
+  an effect that cannot meet them is dropped.  ``info["bounds"]`` keeps what was measured.
 * **records**: 3-4 hammer amplitudes in all, two train and one or two validation records
   (two train amplitudes at least: with one, amplitude-dependent effects cannot be told
   from a re-tuned linear model, a documented limit of the diagnosis), peaks log-uniform over 20-800 N scaled
