@@ -16,6 +16,14 @@ effects, records and splits, so that the diagnosis is judged on cases nobody tun
   white noise; the size is then rescaled (up to four times, each new size measured) towards a visibility
   drawn log-uniform in 3-60 x (sizes from 3 x noise to strong); an effect that diverges
   or never shows (< 1 x) is dropped.  Sensor faults: gain 0.8-0.93 or 1.07-1.2, delay 1-3 samples.
+* **bounds on every record** (``scenario_bounds``, issue 16 third round): then every effect
+  is shrunk until, on *every* record (train and validation), it changes the accelerations
+  by at most 0.5 of their RMS, a coulomb's fc is at most 0.3 x the peak spring force the
+  smallest record's hit produces at its place, and no mode's damping ratio (a damper's
+  equivalent linear coefficient at the largest record's velocity added) exceeds 0.25; and
+  grown until it shows >= 3 x the noise on the larger train record (an effect the train
+  records never see is found by no method).  The bounds win over the drawn visibility;
+  an effect that cannot meet them is dropped.  ``info["bounds"]`` keeps what was measured.
 * **records**: 3-4 hammer amplitudes in all, two train and one or two validation records
   (two train amplitudes at least: with one, amplitude-dependent effects cannot be told
   from a re-tuned linear model, a documented limit of the diagnosis), peaks log-uniform over 20-800 N scaled
@@ -41,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+import scenario_bounds as bounds
 from siva_core import EFFECTS, Recording, Structure, simulate, with_effect
 
 KINDS = ("coulomb", "damper", "quadratic_damper", "cubic_damper", "spring", "cubic_spring",
@@ -256,8 +265,60 @@ def draw(seed: int) -> Scenario:
         s, _ = _response(g, truth, t, kf, peak, width)
         return np.asarray(s.a)
 
+    base_cache: dict[float, np.ndarray] = {}
+
+    def base(peak: float) -> np.ndarray:
+        if peak not in base_cache:
+            base_cache[peak] = clean([], peak)
+        return base_cache[peak]
+
+    def vis_of(kind: str, place: tuple[str, str], coeffs: dict[str, float],
+               on: list[float] | None = None) -> float:
+        vis = []
+        for p in (val_peaks if on is None else on):
+            diff = clean([(kind, place, coeffs)], p) - base(p)
+            sigma = noise * np.max(np.abs(base(p)), axis=0)
+            vis.append(float(np.sqrt(np.mean(diff ** 2)) / np.sqrt(np.mean(sigma ** 2))))
+        return max(vis)
+
+    # the bounds on every record (scenario_bounds' doc): the smallest record's elastic
+    # force at each place, the largest record's relative velocity for the dampers
+    K = bounds.stiffness(spec, truth)
+    q_small = np.asarray(_response(st, truth, t, kf, min(peaks), width)[0].q)
+
+    checked: dict[tuple[str, str], dict[str, float]] = {}  # what the bounds measured
+
+    def within_bounds(kind: str, place: tuple[str, str],
+                      coeffs: dict[str, float]) -> dict[str, float] | None:
+        idx = [dofs.index(x) for x in place if x != "ground"]
+        elastic = bounds.peak_elastic(K, q_small, idx)
+        _, v_peak = rel(place)
+
+        def changes(c: dict[str, float]) -> list[float]:
+            return [bounds.dominance(clean([(kind, place, c)], p) - base(p), base(p))
+                    for p in peaks]
+
+        def damping(c: dict[str, float]) -> float:
+            return bounds.max_damping(st, truth, kind, place, c, v_peak)
+
+        for _b in range(8):
+            over = bounds.excess(kind, place, coeffs, changes, elastic, damping)
+            if not (np.isfinite(over) and over <= 1.0):
+                factor = float(np.clip(0.9 / over, 0.1, 0.9)) if np.isfinite(over) else 0.3
+                coeffs = bounds.shrink(kind, coeffs, factor)
+                continue
+            seen = vis_of(kind, place, coeffs, train_peaks)
+            if seen >= bounds.TRAIN_VISIBLE:
+                checked[place] = {"dominance": max(changes(coeffs)),
+                                  "train_visibility": seen, "elastic_small": elastic}
+                return coeffs
+            # it never shows on the train records (a contact those amplitudes never
+            # close): nothing fitted to them can find it -- a smaller gap, or larger
+            coeffs = bounds.grow(kind, coeffs, min(2.0, 0.9 / max(over, 1e-3)))
+        return None  # not within the bounds after eight steps: no such scenario
+
     # visibility of each effect on the validation records, scaled to a drawn target
-    # between 3 x the noise and strong (60 x)
+    # between 3 x the noise and strong (60 x), then bounded on every record
     visibility = []
     targets = [math.exp(rng.uniform(math.log(3.0), math.log(60.0))) for _ in effects]
     for n_e, (kind, place, coeffs) in enumerate(effects):
@@ -266,13 +327,7 @@ def draw(seed: int) -> Scenario:
         # (it used to be rescaled after its last measurement, so the recorded visibility
         # was that of the size before, e.g. seed 5003's effects at 2.0 and 1.9 x)
         for _step in range(5):
-            vis = []
-            for p in val_peaks:
-                base = clean([], p)
-                diff = clean([(kind, place, coeffs)], p) - base
-                sigma = noise * np.max(np.abs(base), axis=0)
-                vis.append(float(np.sqrt(np.mean(diff ** 2)) / np.sqrt(np.mean(sigma ** 2))))
-            vis_max = max(vis)
+            vis_max = vis_of(kind, place, coeffs)
             if not np.isfinite(vis_max):
                 coeffs = {k: (x * 0.3 if k != "gap" else x) for k, x in coeffs.items()}
                 continue
@@ -284,8 +339,15 @@ def draw(seed: int) -> Scenario:
                 coeffs = {"k": coeffs["k"] * step, "gap": coeffs["gap"] * (0.5 if vis_max < 0.3 else 1.0)}
             else:
                 coeffs = {k: x * step for k, x in coeffs.items()}
-        if not np.isfinite(vis_max) or vis_max < 1.0:  # diverges, or never shows: no scenario
-            effects[n_e] = None  # type: ignore[call-overload]
+        if np.isfinite(vis_max) and vis_max >= 1.0:
+            bounded = within_bounds(kind, place, coeffs)
+            if bounded is not None and bounded is not coeffs:
+                coeffs = bounded
+                vis_max = vis_of(kind, place, coeffs)
+            elif bounded is None:
+                vis_max = math.nan
+        if not np.isfinite(vis_max) or vis_max < 1.0:  # diverges, never shows, or cannot
+            effects[n_e] = None  # type: ignore[call-overload]  # be bounded: no scenario
             continue
         effects[n_e] = (kind, place, {k: float(f"{x:.3g}") for k, x in coeffs.items()})
         visibility.append(vis_max)
@@ -333,7 +395,8 @@ def draw(seed: int) -> Scenario:
             "modes_hz": [float(f"{x:.4g}") for x in modes], "fs": fs, "pulse_s": width,
             "duration_s": duration, "train_peaks": train_peaks, "val_peaks": val_peaks,
             "noise": noise, "coloured": coloured, "hum": hum, "hum_hz": hum_f,
-            "force_dof": force_dof, "nominal_nonlinear": any(p.startswith("knl_") for p in truth)}
+            "force_dof": force_dof, "nominal_nonlinear": any(p.startswith("knl_") for p in truth),
+            "bounds": [checked.get(place, {}) for _, place, _ in effects]}
     return Scenario(seed, nominal, truth, force_dof, effects, fault, train, val,
                     visibility, info)
 

@@ -105,3 +105,96 @@ def test_scenarios_are_seeded_and_within_their_ranges():
         assert s.info["fs"] >= 5 * max(s.info["modes_hz"]) - 1
         assert len(s.train[0].time) <= 8192
         assert s.category in ("null", "single", "two", "three")
+
+
+def _gap(g: float) -> Candidate:
+    c = Candidate(EFFECTS["coulomb"], G, {})
+    c.gap_after = g
+    return c
+
+
+def test_a_set_at_the_noise_level_needs_one_noise_floor_per_member():
+    s = DiagnoseSettings()  # step_min 0.25, noise_factor 2, kind_check_noise 3
+    # seed 13006's numbers in noise units: the damper alone 3.1, with the gain 1.6
+    assert better(_gap(1.6), 3.1, 1.0, s)
+    # not at the noise level (3.5 > 3): the whole margin (2 x) applies to a 1.5 gain
+    assert not better(_gap(3.5), 5.0, 1.0, s)
+    # at the noise level, but removing less than the floor, or less than step_min
+    assert not better(_gap(1.0), 1.8, 1.0, s)
+    assert not better(_gap(2.9), 3.8, 1.0, s)  # 0.9: below the floor and step_min
+    assert not better(_gap(2.0), 2.4, 0.1, s)  # 0.4 < 0.25 x 2.4
+
+
+def test_later_structural_fits_paired_with_a_sensor_fault():
+    from siva_core._impl.diagnose.sets import after_sensor
+
+    s = DiagnoseSettings()
+    cands = []
+    for cost, kind in [(0.0075, "clearance"), (0.0081, "quadratic_spring"),
+                       (0.0095, "cubic_spring"), (0.006, "coulomb"), (0.007, "spring")]:
+        c = Candidate(EFFECTS[kind], G, {}, fitted=True)
+        c.train_cost = cost
+        cands.append(c)
+    got = after_sensor(cands, 0.01036, s)  # the stage started at 0.01036 (seed 13010)
+    # below (1 - step_min / 2) x 0.01036 = 0.00907, best first, at most pair_members
+    assert [c.effect.kind for c in got] == ["coulomb", "spring", "clearance"]
+
+
+def test_a_sensor_value_is_refitted_with_the_structural_model():
+    """The delay fitted without the structural effect is biased; re-fitted with the right
+    model (here the generating one) it returns to the truth (joint_sensor's doc)."""
+    from siva_core._impl.diagnose.joint_sensor import retune_sensor
+    from siva_core._impl.diagnose.sensor_faults import CHANNEL_DELAY, corrected
+
+    st = Structure.from_dict(TWO)
+    gen = with_effect(st, "cubic_spring", ("x", "ground"), {"k3": K3})
+    theta = gen.vector(NOMINAL)
+    fs, delay = 512.0, 2.0 / 512.0
+    clean = synthetic_impacts(gen, theta, [60.0, 150.0], dof="y", fs=fs, duration=1.5,
+                              seed=3)
+    # the faulty records: channel x lags by two samples (corrected() with -delay undoes
+    # a lead, i.e. makes the lag)
+    train = corrected(clean, CHANNEL_DELAY, "acc_x", -delay)
+    c = Candidate(CHANNEL_DELAY, Location(0, -1, ("acc_x", "sensor")), {})
+    c.coefficients = {"delay": delay - 0.8 / fs}  # biased by 0.8 samples
+    out = retune_sensor(c, gen, theta, train, Processing.none(), 10)
+    assert out is not None
+    new, th, cost, _ = out
+    assert abs(new.coefficients["delay"] - delay) < 0.25 / fs
+    assert c.coefficients["delay"] == pytest.approx(delay - 0.8 / fs)  # a copy, not c
+
+
+def test_scenario_effects_are_bounded_on_every_record():
+    """Seeds whose effects dominated a train record before the bounds (13002: coulomb
+    fc 52 N against 2.6-9.1 N hits; 13007: a 1890 N s/m damper; 13008: fc 25 N)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import scenario_bounds as bounds
+    import scenarios
+
+    for seed in (13002, 13007, 13008, 13012):
+        s = scenarios.draw(seed)
+        assert len(s.info["bounds"]) == len(s.effects)
+        for (kind, _, coeffs), b in zip(s.effects, s.info["bounds"]):
+            assert b["dominance"] <= bounds.DOMINANCE
+            assert b["train_visibility"] >= bounds.TRAIN_VISIBLE
+            if kind == "coulomb":
+                assert coeffs["fc"] <= bounds.FRICTION_SHARE * b["elastic_small"] * 1.01
+            if kind == "damper":
+                assert coeffs["c"] < 1890.0
+
+
+def test_bounds_refuse_a_locking_friction_and_an_overdamping_damper():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import scenario_bounds as bounds
+
+    st = Structure.from_dict(TWO)
+    small = lambda c: [0.1]  # noqa: E731 - the response hardly changes
+    no_damping = lambda c: 0.01  # noqa: E731
+    assert bounds.excess("coulomb", ("x", "ground"), {"fc": 5.0}, small, 10.0,
+                         no_damping) > 1.0  # fc above 0.3 x the 10 N elastic force
+    assert bounds.excess("coulomb", ("x", "ground"), {"fc": 2.0}, small, 10.0,
+                         no_damping) <= 1.0
+    zeta = bounds.max_damping(st, NOMINAL, "damper", ("y", "ground"), {"c": 500.0}, 1.0)
+    assert zeta > bounds.ZETA_MAX  # y (0.5 kg) on ~55 rad/s: critical near 55 N s/m
+    assert bounds.max_damping(st, NOMINAL, "damper", ("y", "ground"), {"c": 1.0},
+                              1.0) < bounds.ZETA_MAX

@@ -22,7 +22,7 @@ from .scoring import validation_gap
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
-from .sets import choose_set
+from .sets import after_sensor, choose_set
 from .where import _explain, spectral_noise_floor, where_analysis
 
 from .stage import Fraction, _explained, _partial, _polish, _refresh, _stage
@@ -74,6 +74,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     stages: list[dict[str, Any]] = []
     ranking: list[Candidate] = []
     cands: list[Candidate] = []
+    later: list[Candidate] = []
     rule: dict[str, Any] = {}
     cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
     cur_gap, cur_blocks = gap_before, before_blocks
@@ -85,6 +86,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                             v.category == "sensor" for v in verdicts),
                         progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
                         noise)
+        if any(v.category == "sensor" for v in verdicts):  # paired with it at the end
+            later += after_sensor(rk, cur_fit.train_cost, settings)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
         v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts))
@@ -152,7 +155,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule = {**rule, **rule0}
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
-        psd_floor, settings, progress)
+        psd_floor, settings, progress, later)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]
