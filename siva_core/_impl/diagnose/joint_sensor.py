@@ -22,7 +22,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate
-from .sensor_faults import corrected
+from .sensor_faults import corrected, corrected_cost
 from .settings import FAST
 
 
@@ -41,7 +41,7 @@ def retune_sensor(sensor: Candidate, structure: Structure, theta: np.ndarray,
     ``train`` records, starting from ``sensor``'s value and ``theta``.  Returns (a copy of
     the sensor candidate with the new value, theta, train cost, the refine result), or
     None when that does not lower the train cost."""
-    from ..refine import output_error, refine
+    from ..refine import refine
 
     fault, ch = sensor.effect, sensor.loc.between[0]
     mag = fault.magnitude
@@ -52,12 +52,7 @@ def retune_sensor(sensor: Candidate, structure: Structure, theta: np.ndarray,
     fs = min(r.fs for r in train)
 
     def cost(th: np.ndarray, v: float) -> float:
-        try:
-            x = float(output_error(structure, th[None], corrected(train, fault, ch, v),
-                                   proc)[0])
-        except Exception:  # noqa: BLE001 - a value the chain cannot process
-            return math.inf
-        return x if np.isfinite(x) else math.inf
+        return corrected_cost(structure, th, train, fault, ch, v, proc)
 
     start = cost(theta, v0)
     grid = value_grid(is_gain, v0, fs)

@@ -6,12 +6,17 @@ use it, so neither has to import the other.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from ..recording import Recording
+
+if TYPE_CHECKING:
+    from ..processing import Processing
+    from ..structure import Structure
 
 #: gain errors scanned (measured / true); a sensitivity off by more than 2x is a wiring fault
 GAINS = tuple(float(x) for x in np.exp(np.linspace(np.log(0.7), np.log(1.4), 7)))
@@ -77,3 +82,19 @@ def corrected(records: Sequence[Recording], fault: SensorFault, channel: str,
             y = np.interp(r.time + value, r.time, x)
         out.append(dataclasses.replace(r, channels={**r.channels, channel: y}))
     return out
+
+
+def corrected_cost(structure: "Structure", theta: np.ndarray, train: Sequence[Recording],
+                   fault: SensorFault, channel: str, value: float, proc: "Processing") -> float:
+    """Output-error train cost of ``theta`` on ``train`` corrected for ``fault`` at
+    ``value``; inf where the chain cannot process the corrected records (a value a scan
+    steps over, not an error)."""
+    from ..refine import output_error
+
+    try:
+        x = float(output_error(structure, theta[None], corrected(train, fault, channel, value),
+                               proc)[0])
+    except Exception:  # noqa: BLE001 - a value the chain cannot process
+        return math.inf
+    return x if np.isfinite(x) else math.inf
+

@@ -19,7 +19,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate, Location
-from .sensor_faults import ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected
+from .sensor_faults import ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected, corrected_cost
 from .settings import FAST, DiagnoseSettings
 
 
@@ -131,7 +131,7 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     absorbed part of it into stiffness and damping, so the linearised scan at the nominal
     parameters can put its best value near 1 (measured: force gain 1.15, scan best 0.995);
     after one real re-tune the cost is no longer distorted by that absorption."""
-    from ..refine import output_error, refine
+    from ..refine import refine
 
     t0 = time.perf_counter()
     fault, ch = c.effect, c.loc.between[0]
@@ -158,12 +158,7 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                        max(10, settings.fit_nfev // 2))
 
     def cost(th: np.ndarray, v: float) -> float:
-        try:
-            x = float(output_error(structure, th[None], corrected(train, fault, ch, v),
-                                   proc)[0])
-        except Exception:  # noqa: BLE001 - a value the chain cannot process
-            return math.inf
-        return x if np.isfinite(x) else math.inf
+        return corrected_cost(structure, th, train, fault, ch, v, proc)
 
     if fault is not FORCE_GAIN:
         grid = _value_grid(is_gain, v0, fs)
