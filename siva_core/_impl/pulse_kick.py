@@ -156,12 +156,19 @@ def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray 
         return a
     at_samples = staged[..., ::2 * m, :]
     diff = np.asarray(force, dtype=float) - at_samples          # (T, n) or (B, T, n)
-    if not np.any(diff):
+    rows = np.flatnonzero(np.any(diff != 0, axis=tuple(range(diff.ndim - 2)) + (-1,)))
+    if rows.size == 0:
         return a
+    # only the samples where the reading differs from the sample (a hammer pulse's few,
+    # when the force is gated to it); elsewhere the correction is 0 and ``a`` stays
+    lo, hi = int(rows[0]), int(rows[-1]) + 1
     gain = np.array([float(structure.force_gain(d)) / float(structure.mass[d])
                      for d in structure.dofs])
-    corr = np.broadcast_to(diff * gain, a.shape)
+    part = a[..., lo:hi, :]
+    corr = np.broadcast_to(diff[..., lo:hi, :] * gain, part.shape)
     if force_scale is not None:
         corr = corr * np.broadcast_to(np.asarray(force_scale, float).ravel(), (a.shape[0],)
                                       )[:, None, None]
-    return a + corr
+    out = a.copy()
+    out[..., lo:hi, :] = part + corr
+    return out
