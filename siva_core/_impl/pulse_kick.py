@@ -138,7 +138,8 @@ ACC_AT_FORCE_SAMPLES = True
 
 def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray | None,
                                 staged: np.ndarray | None, m: int,
-                                force_scale: np.ndarray | None) -> np.ndarray:
+                                force_scale: np.ndarray | None, inplace: bool = False
+                                ) -> np.ndarray:
     """(B, T, n) the simulated accelerations with the force term at each sample set to the
     measured force sample (times the set's multiplier).
 
@@ -149,7 +150,8 @@ def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray 
     needs but the instantaneous acceleration must not see.  The error sat on the few samples
     of the pulse, spread by the chain's filters, and shifted a cubic stiffness by ~1 %
     (chain hit on its end mass, 4 samples per pulse).  Only with numeric force gains and a
-    diagonal mass (the lumped models); otherwise unchanged."""
+    diagonal mass (the lumped models); otherwise unchanged.  ``inplace``: ``a`` is the
+    caller's own (a fresh simulation) and is corrected where it is, not copied."""
     if (not ACC_AT_FORCE_SAMPLES or force is None or staged is None
             or any(not isinstance(structure.force_gain(d), (int, float))
                    for d in structure.dofs)):
@@ -169,6 +171,6 @@ def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray 
     if force_scale is not None:
         corr = corr * np.broadcast_to(np.asarray(force_scale, float).ravel(), (a.shape[0],)
                                       )[:, None, None]
-    out = a.copy()
+    out = a if inplace else a.copy()
     out[..., lo:hi, :] = part + corr
     return out

@@ -164,14 +164,17 @@ class OutputErrorProblem:
             basis = r.kick_basis(self.interp)
             rows = np.flatnonzero(np.any(basis != 0, axis=1))   # the pulse's stage rows
             lo, hi = int(rows[0]), int(rows[-1]) + 1
-            staged = np.array(np.broadcast_to(staged, (B,) + staged.shape[-2:]))
+            # C order: from a broadcast view numpy's default ("K") puts the set axis
+            # innermost, and the kernel then copied it into C order once more (1 s of
+            # LO-NO's identify, docs/perf.md 8.3)
+            staged = np.array(np.broadcast_to(staged, (B,) + staged.shape[-2:]), order="C")
             staged[:, lo:hi] += (kick[:, 0, None, :] * basis[None, lo:hi, 0, None]
                                  + kick[:, 1, None, :] * basis[None, lo:hi, 1, None])
         sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
                        substeps=r.substeps, backend=self.backend, interp=self.interp,
                        force_scale=force_scale, staged_force=staged)
         q, v, a = sim.q, sim.v, sampled_force_acceleration(
-            self.structure, sim.a, force, staged, r.substeps, force_scale)
+            self.structure, sim.a, force, staged, r.substeps, force_scale, inplace=True)
         ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
               & np.all(np.isfinite(a), axis=(1, 2)))
         if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway
