@@ -1,16 +1,19 @@
 """The speed-ups of docs/perf.md 8.3 compute the same numbers as the code they replace,
 bit for bit: the compiled zero-phase filter against scipy's, a batch of staged forces
 against staging each, the sampled-force correction on the pulse's rows against the whole
-record, and a single simulated set on one thread against the same set in a batch."""
+record, a single simulated set on one thread against the same set in a batch, a record
+simulated in two segments against one run, and the bootstrap's block weights."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from siva_core import Structure, simulate, stage_force
+from siva_core._impl.bootstrap import block_weights, series_of  # the bootstrap's weights
 from siva_core._impl.processing import filters  # the compiled filter and its reference
 from siva_core._impl.processing.filtfilt_kernel import filtfilt_kernel
 from siva_core._impl.pulse_kick import sampled_force_acceleration
+from siva_core._impl.simulate import simulate_split  # a record in two segments
 
 #: every kind of filter the chain runs (band-pass, band edge at Nyquist, notch, high-pass
 #: of the integration, low-pass of the decimation / differentiation), at LO-NO's and the
@@ -94,3 +97,50 @@ def test_a_single_set_on_one_thread_equals_the_set_in_a_batch(lono_model: Struct
                      backend="numba")
     assert numba.get_num_threads() == before
     assert np.array_equal(alone.a[0], both.a[1]) and np.array_equal(alone.q[0], both.q[1])
+
+
+def test_a_record_simulated_in_two_segments_equals_one_run(lono_model: Structure) -> None:
+    """``simulate_split``: per-set force in the head (a kick at the pulse), the shared force
+    after it; the second segment starts from the first's state: the same steps."""
+    pytest.importorskip("numba")
+    theta = np.array([3.84, 19273.0, 0.786, 1947.6, 2.76e7, 2.0])[None] * np.array(
+        [[1.0], [1.02], [0.97]])
+    t = np.arange(3000) / 2048.0
+    F = np.zeros((len(t), 2))
+    F[100:106, 1] = [50.0, 300.0, 530.0, 400.0, 120.0, 10.0]
+    m = 3
+    shared = stage_force(F, m, "moments")
+    w = 108
+    rng = np.random.default_rng(1)
+    full = np.repeat(shared[None], 3, axis=0)
+    full[:, 2 * m * 99:2 * m * 107] += rng.standard_normal((3, 2 * m * 8, 2))
+    head = np.ascontiguousarray(full[:, :2 * m * w + 1])
+    scale = np.array([1.0, 0.98, 1.03])
+    one = simulate(lono_model, theta, t, np.zeros(2), np.zeros(2), np.repeat(F[None], 3, 0),
+                   substeps=m, backend="numba", force_scale=scale, staged_force=full)
+    two = simulate_split(lono_model, theta, t, np.zeros(2), np.zeros(2), head, shared, m, scale)
+    for x, y in zip((one.q, one.v, one.a), two):
+        assert np.array_equal(x, y)
+
+
+def test_block_weights_count_the_blocks_as_one_by_one() -> None:
+    """The moving-block bootstrap's row weights from a running sum of block starts and
+    ends: the numbers of the loop that added each block (integers, exact)."""
+    import math
+
+    def by_loop(series, L, rng):
+        w = np.zeros(sum(s.T * s.width for s in series))
+        for s in series:
+            Lk = min(L, s.T)
+            counts = np.zeros(s.T)
+            for a in rng.integers(0, s.T - Lk + 1, size=math.ceil(s.T / Lk)):
+                counts[a:a + Lk] += 1.0
+            counts *= s.T / counts.sum()
+            w[s.start:s.start + s.T * s.width] = np.repeat(counts, s.width)
+        return w
+
+    for shapes, L in [([(1000, 2)], 31), ([(50, 1), (7, 3)], 12), ([(3, 2)], 5)]:
+        series = series_of(shapes)
+        r1, r2 = np.random.default_rng(5), np.random.default_rng(5)
+        for _ in range(20):
+            assert np.array_equal(block_weights(series, L, r2), by_loop(series, L, r1))
