@@ -15,12 +15,20 @@ filters, docs/perf.md 8.3.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-try:
-    import numba as _nb
-except ImportError:  # the scipy path of ``filters.sosfiltfilt`` stays
-    _nb = None
+
+@functools.lru_cache(maxsize=1)
+def _numba():
+    """numba, imported at the first filter call (not with the chain: ``siva --help`` and
+    record handling stay light), or None when it is missing (scipy's path stays)."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba
 
 
 def _filtfilt_time_major(sos: np.ndarray, zi: np.ndarray, x: np.ndarray,
@@ -143,9 +151,12 @@ _simpson = None
 def filtfilt_kernel():
     """The compiled ``_filtfilt_time_major`` (None without numba)."""
     global _compiled, _one_signal
-    if _compiled is None and _nb is not None:
-        _one_signal = _nb.njit(cache=True, nogil=True)(_one_signal)
-        _compiled = _nb.njit(cache=True, nogil=True)(_filtfilt_time_major)
+    if _compiled is None:
+        nb = _numba()
+        if nb is None:
+            return None
+        _one_signal = nb.njit(cache=True, nogil=True)(_one_signal)
+        _compiled = nb.njit(cache=True, nogil=True)(_filtfilt_time_major)
     return _compiled
 
 
@@ -192,9 +203,10 @@ def cumulative_simpson_batched(x: np.ndarray, dx: float) -> np.ndarray | None:
     Why: the chain integrates every simulated acceleration twice for a displacement metric
     (Approach III over 100 candidates), and scipy's version builds five temporaries."""
     global _simpson
-    if _nb is None:
-        return None
     if _simpson is None:
-        _simpson = _nb.njit(cache=True, nogil=True)(_cumulative_simpson_rows)
+        nb = _numba()
+        if nb is None:
+            return None
+        _simpson = nb.njit(cache=True, nogil=True)(_cumulative_simpson_rows)
     flat = np.ascontiguousarray(x.reshape(x.shape[0], -1), dtype=np.float64)
     return _simpson(flat, float(dx)).reshape(x.shape)
