@@ -41,6 +41,10 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",
                                           "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_chain_cache.py": {"siva_core._impl.chain_cache": "clearing the memo"},
+    "tests/test_fast_paths.py": {"siva_core._impl.processing": "the compiled filter vs scipy's",
+                                 "siva_core._impl.pulse_kick": "the sampled-force correction",
+                                 "siva_core._impl.simulate": "a record in two segments",
+                                 "siva_core._impl.bootstrap": "the block weights"},
     "tests/test_optim.py": {"siva_core._impl.optim": "FastAdam vs torch's Adam, bit for bit",
                             "siva_core._impl.networks": "the networks FastAdam trains"},
     "tests/test_physical_bounds.py": {

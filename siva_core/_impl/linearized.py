@@ -98,14 +98,16 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
               processing: Processing, *, fit_force_scale: bool | str = "auto",
               fit_force_spread: bool | str = "auto", fit_force_kick: bool | str = "auto",
               n_noise: int = 0, fd_step: float = 1e-6, seed: int = 0,
-              substeps: Sequence[int] | None = None) -> Linearization:
+              substeps: Sequence[int] | None = None, jacobian: bool = True) -> Linearization:
     """Linearise the output error of ``records`` at ``theta`` (see the module doc).
     ``fit_force_spread``: also profile out a change of each record's force spread
     (``adjusted_stage_force``; "auto": with the force scale, when
     ``default_force_spread``: off unless enabled),
     the pulse's width between its few samples (docs/perf.md 6.3).  ``fit_force_kick``:
     also profile out each short pulse's kick (``refine``'s ``fit_force_kick``; "auto":
-    with the force scale, where ``force_kick_applicable``)."""
+    with the force scale, where ``force_kick_applicable``).  ``jacobian=False``: only the
+    profiled residuals are wanted (``validation_score``): the parameters' columns are not
+    simulated and ``J`` has none (the residuals are the same, bit for bit)."""
     from .output_error import OutputErrorProblem, _state_derived, default_force_spread
     from .pulse_kick import KICK_STEP_TOL, KICK_STEPS, default_force_kick, kick_mask
     from .refine import _log_mask
@@ -192,8 +194,9 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
             if n_new == n_x - n:
                 break
             settled = True
-    X = np.repeat(base[None], n_x + 1, axis=0)
-    X[1:] += np.eye(n_x) * fd_step
+    first = 0 if jacobian else n  # the columns simulated: the parameters' too, or not
+    X = np.repeat(base[None], n_x - first + 1, axis=0)
+    X[1:, first:] += np.eye(n_x - first) * fd_step
     R = evaluate(X)
     if not np.all(np.isfinite(R[0])):
         raise ValueError("linearize: the simulation diverges at the anchor")
@@ -204,10 +207,10 @@ def linearize(structure: Any, theta: np.ndarray, records: Sequence[Recording],
     # profile the nuisance columns out: project onto the complement of their span
     proj = lambda M: M
     if n_x > n:
-        Jn = Jf[:, n:]
+        Jn = Jf[:, n - first:]
         pinv = np.linalg.pinv(Jn)
         proj = lambda M: M - Jn @ (pinv @ M)
-    r, J = proj(r0), proj(Jf[:, :n])
+    r, J = proj(r0), (proj(Jf[:, :n]) if jacobian else np.zeros((r0.size, 0)))
     noise = np.zeros((0, r0.size))
     if n_noise > 0:
         extra0: dict[str, np.ndarray] = {}

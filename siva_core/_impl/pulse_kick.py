@@ -138,7 +138,8 @@ ACC_AT_FORCE_SAMPLES = True
 
 def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray | None,
                                 staged: np.ndarray | None, m: int,
-                                force_scale: np.ndarray | None) -> np.ndarray:
+                                force_scale: np.ndarray | None, inplace: bool = False,
+                                at_samples: bool = False) -> np.ndarray:
     """(B, T, n) the simulated accelerations with the force term at each sample set to the
     measured force sample (times the set's multiplier).
 
@@ -149,19 +150,28 @@ def sampled_force_acceleration(structure: Any, a: np.ndarray, force: np.ndarray 
     needs but the instantaneous acceleration must not see.  The error sat on the few samples
     of the pulse, spread by the chain's filters, and shifted a cubic stiffness by ~1 %
     (chain hit on its end mass, 4 samples per pulse).  Only with numeric force gains and a
-    diagonal mass (the lumped models); otherwise unchanged."""
+    diagonal mass (the lumped models); otherwise unchanged.  ``inplace``: ``a`` is the
+    caller's own (a fresh simulation) and is corrected where it is, not copied;
+    ``at_samples``: ``staged`` holds the stage force at the samples only ((B, T, n))."""
     if (not ACC_AT_FORCE_SAMPLES or force is None or staged is None
             or any(not isinstance(structure.force_gain(d), (int, float))
                    for d in structure.dofs)):
         return a
-    at_samples = staged[..., ::2 * m, :]
-    diff = np.asarray(force, dtype=float) - at_samples          # (T, n) or (B, T, n)
-    if not np.any(diff):
+    at = staged if at_samples else staged[..., ::2 * m, :]
+    diff = np.asarray(force, dtype=float) - at                  # (T, n) or (B, T, n)
+    rows = np.flatnonzero(np.any(diff != 0, axis=tuple(range(diff.ndim - 2)) + (-1,)))
+    if rows.size == 0:
         return a
+    # only the samples where the reading differs from the sample (a hammer pulse's few,
+    # when the force is gated to it); elsewhere the correction is 0 and ``a`` stays
+    lo, hi = int(rows[0]), int(rows[-1]) + 1
     gain = np.array([float(structure.force_gain(d)) / float(structure.mass[d])
                      for d in structure.dofs])
-    corr = np.broadcast_to(diff * gain, a.shape)
+    part = a[..., lo:hi, :]
+    corr = np.broadcast_to(diff[..., lo:hi, :] * gain, part.shape)
     if force_scale is not None:
         corr = corr * np.broadcast_to(np.asarray(force_scale, float).ravel(), (a.shape[0],)
                                       )[:, None, None]
-    return a + corr
+    out = a if inplace else a.copy()
+    out[..., lo:hi, :] = part + corr
+    return out

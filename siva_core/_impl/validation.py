@@ -87,7 +87,8 @@ def validation_score(structure: Any, theta: Any, records: Sequence[Recording],
         # mid-decay is only known through integration, which is not what is being tested
         whole, t_from = rec.meta.get("held_out_of", (rec, None))
         try:
-            lin = linearize(structure, np.asarray(theta, dtype=float), [whole], processing)
+            lin = linearize(structure, np.asarray(theta, dtype=float), [whole], processing,
+                            jacobian=False)  # the profiled residuals only
         except ValueError as exc:
             per[rec.name] = {"statistic": None, "error": str(exc)}
             num, den = math.inf, 1.0

@@ -11,7 +11,8 @@ import numpy as np
 from ..processing import Processing, States
 from ..pulse_kick import sampled_force_acceleration, single_pulse
 from ..recording import Recording
-from ..simulate import OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force, simulate
+from ..simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
+                        simulate, simulate_split)
 from ..simulate import grid as _grid
 from ..simulate.grid import adjusted_stage_force
 from .records import _QTY_ATTR, _extract, _quantities, _Record
@@ -156,6 +157,7 @@ class OutputErrorProblem:
                 force = np.broadcast_to(force, (B,) + force.shape)
             staged = adjusted_stage_force(force, r.substeps, self.interp, force_shift,
                                           force_spread)
+        split = None
         if force_kick is not None and force is not None and np.any(force_kick):
             kick = np.asarray(force_kick, dtype=float)
             B = kick.shape[0]
@@ -164,14 +166,37 @@ class OutputErrorProblem:
             basis = r.kick_basis(self.interp)
             rows = np.flatnonzero(np.any(basis != 0, axis=1))   # the pulse's stage rows
             lo, hi = int(rows[0]), int(rows[-1]) + 1
-            staged = np.array(np.broadcast_to(staged, (B,) + staged.shape[-2:]))
+            m2 = 2 * r.substeps
+            w = (hi - 1) // m2 + 1  # the first sample whose intervals are past the kick
+            # one force for every set after the kick: only the head is per set
+            # (``simulate_split``), else the whole record
+            shared = (staged if staged.ndim == 2 and self.backend == "numba"
+                      and w < len(r.rec) - 1 else None)
+            end = m2 * w + 1 if shared is not None else staged.shape[-2]
+            # C order: from a broadcast view numpy's default ("K") puts the set axis
+            # innermost, and the kernel then copied it into C order once more (1 s of
+            # LO-NO's identify, docs/perf.md 8.3)
+            staged = np.array(np.broadcast_to(staged[..., :end, :], (B, end, staged.shape[-1])),
+                              order="C")
             staged[:, lo:hi] += (kick[:, 0, None, :] * basis[None, lo:hi, 0, None]
                                  + kick[:, 1, None, :] * basis[None, lo:hi, 1, None])
-        sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
-                       substeps=r.substeps, backend=self.backend, interp=self.interp,
-                       force_scale=force_scale, staged_force=staged)
-        q, v, a = sim.q, sim.v, sampled_force_acceleration(
-            self.structure, sim.a, force, staged, r.substeps, force_scale)
+            if shared is not None:
+                split = simulate_split(self.structure, thetas, r.rec.time, q0, v0, staged,
+                                       shared, r.substeps, force_scale)
+                at = np.empty(force.shape)  # the stage force at the samples, per set
+                at[:] = shared[::m2]
+                at[:, :w + 1] = staged[:, ::m2]
+                staged = at
+        if split is not None:
+            q, v, a = split
+            a = sampled_force_acceleration(self.structure, a, force, staged, r.substeps,
+                                           force_scale, inplace=True, at_samples=True)
+        else:
+            sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
+                           substeps=r.substeps, backend=self.backend, interp=self.interp,
+                           force_scale=force_scale, staged_force=staged)
+            q, v, a = sim.q, sim.v, sampled_force_acceleration(
+                self.structure, sim.a, force, staged, r.substeps, force_scale, inplace=True)
         ok = (np.all(np.isfinite(q), axis=(1, 2)) & np.all(np.isfinite(v), axis=(1, 2))
               & np.all(np.isfinite(a), axis=(1, 2)))
         if not np.all(ok):  # keep NaN out of the filters; those rows are discarded anyway

@@ -15,6 +15,8 @@ from typing import Any, Iterable
 import numpy as np
 from scipy import signal
 
+from .filtfilt_kernel import sosfiltfilt_batched
+
 # A filter in the ledger: ("band", lo, hi) | ("high", fc) | ("low", fc) | ("notch", f0, q)
 FilterKey = tuple
 
@@ -57,12 +59,26 @@ def sos_zi(kind: str, cut: float | tuple[float, float], fs: float, order: int) -
 def sosfiltfilt(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, axis: int,
                 padlen: int) -> np.ndarray:
     """``scipy.signal.sosfiltfilt(sos, x, axis, padtype="odd", padlen)`` with a precomputed
-    ``zi`` (the same operations in the same order: bit-identical results)."""
+    ``zi`` (the same operations in the same order: bit-identical results), by the compiled
+    kernel of ``filtfilt_kernel`` for float arrays (all signals of a batch in one pass),
+    else by scipy's ``sosfilt``."""
     axis = axis % x.ndim
     n = x.shape[axis]
     if n <= padlen:
         raise ValueError(f"The length of the input vector x must be greater than padlen, "
                          f"which is {padlen}.")
+    if x.dtype == np.float64 and x.size:
+        y = sosfiltfilt_batched(sos, zi, x, axis, padlen)
+        if y is not None:
+            return y
+    return sosfiltfilt_scipy(sos, zi, x, axis, padlen)
+
+
+def sosfiltfilt_scipy(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, axis: int,
+                      padlen: int) -> np.ndarray:
+    """``sosfiltfilt`` by scipy's ``sosfilt`` (the fallback, and the reference the compiled
+    kernel is tested against)."""
+    axis = axis % x.ndim
 
     def sl(start: int | None = None, stop: int | None = None, step: int | None = None
            ) -> tuple[slice, ...]:

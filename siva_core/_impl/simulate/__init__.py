@@ -34,7 +34,7 @@ from typing import Any
 from .backends import choose_backend
 from .grid import MEASURED_FORCE_INTERP, adjusted_stage_force, set_measured_force_interp, stage_force
 from .numba_kernel import compiled_kernel
-from .solver import Simulation, simulate, warmup
+from .solver import Simulation, simulate, simulate_split, warmup
 from .substeps import OMEGA_H, auto_substeps
 
 #: the previous private name, still imported by callers outside this package
@@ -52,6 +52,6 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Simulation", "simulate", "auto_substeps", "initial_state_and_force", "gate_force",
+__all__ = ["Simulation", "simulate", "simulate_split", "auto_substeps", "initial_state_and_force", "gate_force",
            "compiled_kernel", "warmup", "stage_force", "adjusted_stage_force", "MEASURED_FORCE_INTERP", "set_measured_force_interp", "choose_backend",
            "OMEGA_H"]

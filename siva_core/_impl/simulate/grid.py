@@ -42,6 +42,8 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
     "cubic": a not-a-knot cubic spline through the samples (similar to "moments" on
     pulses; a band-limited excitation sampled a few times per period, Silverbox)."""
     if F.ndim == 3:  # one force per parameter set: (B, T, n) -> (B, rows, n)
+        if interp in ("moments", "linear") and len(F) > 1:
+            return _staged_batch(F, m, interp)
         return np.stack([stage_force(f, m, interp) for f in F])
     T, n = F.shape
     if interp == "moments":
@@ -64,6 +66,42 @@ def stage_force(F: np.ndarray, m: int, interp: str = "linear") -> np.ndarray:
                      f"got {interp!r}")
 
 
+
+
+def _prefiltered(F: np.ndarray, interp: str) -> np.ndarray:
+    """The samples the piecewise-linear reading goes through (``stage_force``'s prefilter
+    for "moments", the samples themselves for "linear"), along axis -2."""
+    if interp != "moments":
+        return F
+    G = F.copy()
+    G[..., 1:-1, :] -= (F[..., 2:, :] - 2.0 * F[..., 1:-1, :] + F[..., :-2, :]) / 12.0
+    return G
+
+
+def _staged_batch(F: np.ndarray, m: int, interp: str) -> np.ndarray:
+    """``stage_force`` of each of the (B, T, n) forces, the same numbers as one by one:
+    the first in full, each other one as a copy of it with only the sample intervals
+    whose prefiltered end points differ recomputed.  Why: the parametric replicates
+    differ only in the few samples of a hammer pulse (new force-sensor noise there), and
+    staging each in full cost 0.6 s of LO-NO's identify (docs/perf.md 8.3)."""
+    B, T, n = F.shape
+    G = _prefiltered(F, interp)
+    first = stage_force(F[0], m, interp)
+    out = np.empty((B,) + first.shape)
+    out[0] = first
+    w = (np.arange(2 * m) / (2.0 * m))[None, :, None]
+    for b in range(1, B):
+        out[b] = first
+        same = np.all(G[b] == G[0], axis=-1)           # (T,) end points as the first's
+        if not same[-1]:
+            out[b, -1] = G[b, -1]
+        changed = np.flatnonzero(~(same[:-1] & same[1:]))   # intervals to recompute
+        if changed.size == 0:
+            continue
+        i0, i1 = int(changed[0]), int(changed[-1]) + 1
+        out[b, 2 * m * i0:2 * m * i1] = (G[b, i0:i1, None, :] * (1.0 - w)
+                                         + G[b, i0 + 1:i1 + 1, None, :] * w).reshape(-1, n)
+    return out
 
 
 def adjusted_stage_force(F: np.ndarray, m: int, interp: str, shifts: np.ndarray | None = None,

@@ -8,6 +8,7 @@ or ``~/.cache/siva/kernels`` so numba's own cache can persist the machine code).
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -15,11 +16,20 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from .grid import BLOWUP
+
+#: the kernel's OpenMP threads (numba's "omp" layer) sleep while they wait instead of
+#: spinning (libgomp's default spins ~300k times).  Why: a worker that spins after a batch
+#: and a caller that spins at the barrier burn a core each; on a loaded 2-core machine the
+#: spinning caller even delays the worker it waits for (cantilever, 11 sets: 7.2 ms CPU
+#: and 15 ms wall per call spinning, 3.1 ms and 7 ms passive; docs/perf.md 8.3).  Only
+#: the waiting changes, not what is computed (bit-identical).  Read once, when numba
+#: starts its thread pool (the first parallel kernel call); a value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 class NotCompilable(Exception):
@@ -288,10 +298,34 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
     V = np.empty((B, T, n))
     A = np.empty((B, T, n))
     invm = np.ascontiguousarray(1.0 / structure.masses)
-    with _KERNEL_LOCK:
+    with _KERNEL_LOCK, _threads_for(B):
         kernel(P, G, Fa, invm, np.ascontiguousarray(Q0), np.ascontiguousarray(V0),
                float(dt), int(m), Q, V, A)
     return Q, V, A
+
+
+@contextlib.contextmanager
+def _threads_for(B: int) -> Iterator[None]:
+    """Run a batch of one set on the calling thread alone.  Why: ``prange`` gives each
+    set to one thread, so a second thread has nothing to do for B = 1, yet the parallel
+    region still wakes it and waits for it at the barrier; on a loaded machine that wait
+    cost 6 ms of CPU per call against 0.4 ms for the simulation itself (cantilever, 2500
+    samples; ``refine`` evaluates single sets hundreds of times, docs/perf.md 8.3).  The
+    same compiled kernel runs either way, each set by the same code: bit-identical."""
+    if B != 1:
+        yield
+        return
+    import numba
+
+    previous = numba.get_num_threads()
+    if previous == 1:
+        yield
+        return
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 def numba_unusable(structure: Any) -> str | None:

@@ -104,3 +104,34 @@ def warmup(structure: Any) -> None:
         theta = np.ones((1, len(structure.free)))
         run_numba(structure, theta, 1e-3, 2, np.zeros((1, n)), np.zeros((1, n)),
                   np.zeros((3, n)), 1)
+
+
+def simulate_split(structure: Any, theta: np.ndarray, t: np.ndarray, q0: Any, v0: Any,
+                   head: np.ndarray, shared: np.ndarray, m: int,
+                   force_scale: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Q, V, A), each (B, T, n), of ``simulate`` (numba backend, integer substeps ``m``)
+    with a stage force per set only in the record's head: ``head`` (B, 2 m w + 1, n) up to
+    sample w, ``shared`` (rows, n) the one force of every set (its rows from sample w on).
+
+    Why: a kick at a hammer pulse changes a few stage rows of each set's force; a
+    (B, rows, n) copy of the whole staged record per call cost more than the kick's
+    simulation (docs/perf.md 8.3).  Two kernel runs, the second from the first's state at
+    sample w, take the same steps on the same numbers as one (a sample's step reads only
+    the state and the force rows of its interval): bit-identical."""
+    th = np.atleast_2d(np.asarray(theta, dtype=float))
+    B, n = th.shape[0], structure.n_dof
+    T = len(t)
+    w = (head.shape[1] - 1) // (2 * m)
+    if head.shape != (B, 2 * m * w + 1, n) or not 0 < w < T - 1:
+        raise ValueError("head must be (B, 2 m w + 1, n_dof) with 0 < w < T - 1")
+    dt = float(t[-1] - t[0]) / (T - 1)  # as ``simulate``
+    Q0 = np.broadcast_to(np.asarray(q0, dtype=float), (B, n)).copy()
+    V0 = np.broadcast_to(np.asarray(v0, dtype=float), (B, n)).copy()
+    gs = (None if force_scale is None
+          else np.broadcast_to(np.asarray(force_scale, dtype=float).ravel(), (B,)).copy())
+    Q1, V1, A1 = run_numba(structure, th, dt, w + 1, Q0, V0, head, m, gs)
+    Q2, V2, A2 = run_numba(structure, th, dt, T - w, Q1[:, w].copy(), V1[:, w].copy(),
+                           shared[2 * m * w:], m, gs)
+    return tuple(np.concatenate([x1[:, :w], x2], axis=1)
+                 for x1, x2 in ((Q1, Q2), (V1, V2), (A1, A2)))
