@@ -5,11 +5,13 @@ exact half-sine pulse starting ``phase`` samples after the sample at 0.1 s; refi
 force multiplier fitted per record (as ``best``), once as before and once with the force's
 sub-sample delay fitted too (``refine(..., fit_force_shift=True)``), its spread, or the
 kick at the pulse (``--mode kick``: ``refine(..., fit_force_kick=True)``, docs/perf.md 6.5;
-the other modes pin the kick off).  With no noise, any error left is the model's reading
+the other modes pin the kick off).  ``--no-sample-gain``: the hit's accelerations at the
+pulse samples scaled by the multiplier, as before docs/perf.md 6.7.  With no noise, any error left is the model's reading
 of the force between its samples (docs/perf.md 6.3).
 
     OMP_NUM_THREADS=1 nice -n 5 .venv/bin/python benchmarks/bench_pulse_phase.py \\
         [--case chain3_end_1k --case chain4_inner_disp] [--phase 0 --phase 0.5] [--amp A]
+        [--mode kick] [--no-sample-gain]
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cases import CASES  # noqa: E402
 
-from siva_core import choose_processing, refine  # noqa: E402
+from siva_core import choose_processing, refine, set_sample_gain_profiling  # noqa: E402
 
 #: the amplitude of the 6.3 table per case (the low end of its range: weakest nonlinearity)
 AMPLITUDE = {"chain3_end_1k": 50.0, "chain4_inner_disp": 125.0, "twodof_end_slow": 75.0,
@@ -58,7 +60,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", action="append", choices=["before", "delay", "spread",
                                                         "delay+spread", "kick"],
                     help="nuisances fitted besides the multiplier (default: all four)")
+    ap.add_argument("--no-sample-gain", action="store_true",
+                    help="the multiplier at the pulse samples, as before docs/perf.md 6.7")
     a = ap.parse_args(argv)
+    set_sample_gain_profiling(not a.no_sample_gain)
     cases = a.case or ["chain3_end_1k", "chain4_inner_disp"]
     phases = a.phase or [0.0, 0.5]
     for name in cases:

@@ -35,6 +35,7 @@ Identification
     output error: :func:`refine` -> :class:`RefineResult`, :func:`output_error`,
     :func:`force_profiled_output_error`, :func:`displacement_mse`, :class:`OutputErrorProblem`,
     :func:`set_pulse_reading` (ablation: the kick at a hammer pulse, docs/perf.md 6.5),
+    :func:`set_sample_gain_profiling` (ablation: the gain at the pulse samples, 6.7),
     :func:`linearize` -> :class:`Linearization` (the output error linearised at an anchor),
     :func:`settle` -> :class:`Settled` (the anchor moved to the output-error optimum first);
     baselines: :func:`least_squares`, :func:`sindy`, :class:`FitResult`.
@@ -84,6 +85,7 @@ _export("convergence", "ConvergenceMonitor")
 _export("refine", "refine", "RefineResult", "output_error", "displacement_mse",
         "OutputErrorProblem", "force_profiled_output_error")
 _export("pulse_kick", "set_pulse_reading")
+_export("output_error.sample_gain", "set_sample_gain_profiling")
 _export("baselines", "least_squares", "sindy", "FitResult")
 _export("validation", "validation_score")
 _export("linearized", "linearize", "Linearization", "settle", "Settled", "gauss_newton_step")
@@ -134,6 +136,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the real objects (tests check
     from ._impl.refine import (OutputErrorProblem, RefineResult, displacement_mse,
                                force_profiled_output_error, output_error, refine)
     from ._impl.pulse_kick import set_pulse_reading
+    from ._impl.output_error.sample_gain import set_sample_gain_profiling
     from ._impl.report import write_report
     from ._impl.simulate import (Simulation, adjusted_stage_force, auto_substeps,
                                  set_measured_force_interp, simulate, stage_force, warmup)

@@ -18,6 +18,7 @@ OUTSIDE = ("examples", "benchmarks", "service", "clients", "siva_cli", "tests")
 PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_simulate.py": {"siva_core._impl.simulate": "the numba kernel cache"},
     "tests/test_refine.py": {"siva_core._impl.output_error": "patches the problem's simulate"},
+    "tests/test_sample_gain.py": {"siva_core._impl.output_error.sample_gain": "its pattern"},
     "tests/test_training.py": {"siva_core._impl.networks": "the networks' internals"},
     "tests/test_recording.py": {"siva_core._impl.mcap_recording": "the MCAP topic constant"},
     "tests/test_report.py": {"siva_core._impl.report.simulations": "the report's record helpers",

@@ -3,7 +3,9 @@ through the same processing chain as the measurement (see ``refine`` for the fit
 
 The package, one concept per module: ``records`` (:class:`_Record`, one measured record
 prepared once: compared quantities, processed targets, initial state, force and its kick
-patterns), ``problem`` (:class:`OutputErrorProblem`, the batched residuals), ``spread``
+patterns), ``problem`` (:class:`OutputErrorProblem`, the batched residuals),
+``sample_gain`` (the gain of the hit's accelerations at the pulse samples, profiled out
+when a force multiplier is fitted), ``spread``
 (whether the force's spread is identifiable and fitted), ``profiled``
 (:func:`force_profiled_output_error`, the cost with the force nuisances profiled out) and
 ``metrics`` (:func:`output_error`, :func:`displacement_mse`).

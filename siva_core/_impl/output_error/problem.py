@@ -15,6 +15,7 @@ from ..simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_a
                         simulate, simulate_split)
 from ..simulate import grid as _grid
 from ..simulate.grid import adjusted_stage_force
+from . import sample_gain
 from .records import _QTY_ATTR, _extract, _quantities, _Record
 
 
@@ -135,7 +136,14 @@ class OutputErrorProblem:
                                  force_kick=force_kick)
         sim = np.stack([getattr(st, _QTY_ATTR[q])[..., j] for j, q in enumerate(r.quantities)],
                        axis=-1)
-        return ((sim - r.target) * self.weight(k)).reshape(sim.shape[0], -1), ok
+        res = (sim - r.target) * self.weight(k)
+        if force_scale is not None and sample_gain.PROFILE_SAMPLE_GAIN:
+            # a fitted multiplier is for the force between the pulse's samples, not at them:
+            # the gain of the accelerations at the samples is profiled out (docs/perf.md 6.7)
+            pattern = sample_gain.sample_gain_pattern(self, k)
+            if pattern is not None:
+                res = sample_gain.project_sample_gain(res, pattern, r.hit_dof)
+        return res.reshape(sim.shape[0], -1), ok
 
     def _processed(self, thetas: np.ndarray, k: int, force_scale: np.ndarray | None = None,
                    dq0: np.ndarray | None = None, dv0: np.ndarray | None = None,

@@ -34,6 +34,9 @@ class _Record:
     kick_pulse: np.ndarray | None = None
     hit_dof: int = 0
     _kick: tuple[int, str, np.ndarray] | None = None
+    #: (id of ``kick_pulse``, its processed sample-gain pattern or None), cached by
+    #: ``sample_gain.sample_gain_pattern``
+    _gain_pattern: tuple[int, np.ndarray | None] | None = None
 
     def staged(self, interp: str) -> np.ndarray | None:
         """The force on the RK4 stage grid, computed once per (substeps, interp)."""
