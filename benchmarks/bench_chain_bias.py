@@ -34,11 +34,14 @@ CASE = "chain3_end_1k"
 
 def training_record(seed: int, noise: float = 1.0, acc: bool = True, force: bool = True,
                     hum: bool = True, truth: dict[str, float] | None = None,
-                    fs: float | None = None, gain: float = 1.0) -> tuple[Any, Any, dict]:
+                    fs: float | None = None, gain: float = 1.0, stream: int = 0
+                    ) -> tuple[Any, Any, dict]:
     """(case, the benchmark's training record of ``seed`` with its noise sources scaled by
-    ``noise`` / switched off, truth) -- same amplitude and noise draws as the benchmark."""
+    ``noise`` / switched off, truth) -- same amplitude and noise draws as the benchmark.
+    ``stream`` > 0: the same recipe from ``default_rng([seed, stream])`` instead, an extra
+    draw no benchmark seed makes."""
     base = CASES[CASE]
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng([seed, stream] if stream else seed)
     amp = float(rng.uniform(*base.amplitudes))
     kw: dict[str, Any] = dict(noise=base.noise * noise * acc,
                               force_noise=base.force_noise * noise * force,
