@@ -8,7 +8,7 @@ its compiled loop runs one signal at a time, each sample waiting for the previou
 Here the signals of a batch (parameter sets x DOFs) lie side by side, time-major, and
 every step of the recurrence is done for all of them before the next: the same
 operations, in the same order, on each signal as scipy's ``_sosfilt`` (no fast-math, so
-no fused or reassociated arithmetic) -- bit-identical results (``tests/test_filters.py``
+no fused or reassociated arithmetic) -- bit-identical results (``tests/test_fast_paths.py``
 compares them on every filter of the chain) -- with the copies gone and the signals'
 independent chains overlapping in the CPU.  LO-NO's identify spent 2.1 s of CPU in the
 filters, docs/perf.md 8.3.
@@ -56,47 +56,29 @@ def _filtfilt_time_major(sos: np.ndarray, zi: np.ndarray, x: np.ndarray,
     z0 = np.empty((ns, S))
     z1 = np.empty((ns, S))
     cur = np.empty(S)
-    new = np.empty(S)
-    for s in range(ns):
-        for j in range(S):
-            z0[s, j] = zi[s, 0] * y[0, j]
-            z1[s, j] = zi[s, 1] * y[0, j]
-    for t in range(m):  # forward, as scipy's _sosfilt per signal
-        for j in range(S):
-            cur[j] = y[t, j]
+    for d in range(2):  # forward from the first sample, then backward from the last
+        first = 0 if d == 0 else m - 1
         for s in range(ns):
-            b0 = sos[s, 0]
-            b1 = sos[s, 1]
-            b2 = sos[s, 2]
-            a1 = sos[s, 4]
-            a2 = sos[s, 5]
             for j in range(S):
-                xn = b0 * cur[j] + z0[s, j]
-                z0[s, j] = b1 * cur[j] - a1 * xn + z1[s, j]
-                z1[s, j] = b2 * cur[j] - a2 * xn
-                cur[j] = xn
-        for j in range(S):
-            y[t, j] = cur[j]
-    for s in range(ns):
-        for j in range(S):
-            z0[s, j] = zi[s, 0] * y[m - 1, j]
-            z1[s, j] = zi[s, 1] * y[m - 1, j]
-    for t in range(m - 1, -1, -1):  # backward: the reversed signal, in place
-        for j in range(S):
-            cur[j] = y[t, j]
-        for s in range(ns):
-            b0 = sos[s, 0]
-            b1 = sos[s, 1]
-            b2 = sos[s, 2]
-            a1 = sos[s, 4]
-            a2 = sos[s, 5]
+                z0[s, j] = zi[s, 0] * y[first, j]
+                z1[s, j] = zi[s, 1] * y[first, j]
+        for k in range(m):  # scipy's _sosfilt per signal (backward: the reversed signal)
+            t = k if d == 0 else m - 1 - k
             for j in range(S):
-                xn = b0 * cur[j] + z0[s, j]
-                z0[s, j] = b1 * cur[j] - a1 * xn + z1[s, j]
-                z1[s, j] = b2 * cur[j] - a2 * xn
-                cur[j] = xn
-        for j in range(S):
-            y[t, j] = cur[j]
+                cur[j] = y[t, j]
+            for s in range(ns):
+                b0 = sos[s, 0]
+                b1 = sos[s, 1]
+                b2 = sos[s, 2]
+                a1 = sos[s, 4]
+                a2 = sos[s, 5]
+                for j in range(S):
+                    xn = b0 * cur[j] + z0[s, j]
+                    z0[s, j] = b1 * cur[j] - a1 * xn + z1[s, j]
+                    z1[s, j] = b2 * cur[j] - a2 * xn
+                    cur[j] = xn
+            for j in range(S):
+                y[t, j] = cur[j]
     return y[padlen:padlen + n]
 
 
@@ -120,29 +102,20 @@ def _one_signal(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, padlen: int, j: 
         y[padlen + n + i, j] = 2.0 * x[n - 1, j] - x[n - 2 - i, j]
     z0 = np.empty(ns)
     z1 = np.empty(ns)
-    for s in range(ns):
-        z0[s] = zi[s, 0] * y[0, j]
-        z1[s] = zi[s, 1] * y[0, j]
-    for t in range(m):
-        cur = y[t, j]
+    for d in range(2):  # forward, then backward, as above
+        first = 0 if d == 0 else m - 1
         for s in range(ns):
-            xn = sos[s, 0] * cur + z0[s]
-            z0[s] = sos[s, 1] * cur - sos[s, 4] * xn + z1[s]
-            z1[s] = sos[s, 2] * cur - sos[s, 5] * xn
-            cur = xn
-        y[t, j] = cur
-    for s in range(ns):
-        z0[s] = zi[s, 0] * y[m - 1, j]
-        z1[s] = zi[s, 1] * y[m - 1, j]
-    for t in range(m - 1, -1, -1):
-        cur = y[t, j]
-        for s in range(ns):
-            xn = sos[s, 0] * cur + z0[s]
-            z0[s] = sos[s, 1] * cur - sos[s, 4] * xn + z1[s]
-            z1[s] = sos[s, 2] * cur - sos[s, 5] * xn
-            cur = xn
-        y[t, j] = cur
-
+            z0[s] = zi[s, 0] * y[first, j]
+            z1[s] = zi[s, 1] * y[first, j]
+        for k in range(m):
+            t = k if d == 0 else m - 1 - k
+            cur = y[t, j]
+            for s in range(ns):
+                xn = sos[s, 0] * cur + z0[s]
+                z0[s] = sos[s, 1] * cur - sos[s, 4] * xn + z1[s]
+                z1[s] = sos[s, 2] * cur - sos[s, 5] * xn
+                cur = xn
+            y[t, j] = cur
 
 _compiled = None
 _simpson = None
