@@ -22,7 +22,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate
-from .sensor_faults import corrected, corrected_cost
+from .sensor_faults import corrected, corrected_cost, value_parabola
 from .settings import FAST
 
 
@@ -64,24 +64,17 @@ def retune_sensor(sensor: Candidate, structure: Structure, theta: np.ndarray,
     except Exception:  # noqa: BLE001 - the joint fit stands as it was
         return None
     th = np.asarray(res.theta, float)
-    step = 0.03 if is_gain else 0.5 / fs
-    to_v = (lambda x: v * math.exp(x)) if is_gain else (lambda x: v + x)
-    xs = np.array([-step, 0.0, step])
-    c3 = np.array([cost(th, to_v(x)) for x in xs])
-    a, b, _ = np.polyfit(xs, c3, 2) if np.all(np.isfinite(c3)) else (0.0, 0.0, 0.0)
-    x_best = float(np.clip(-b / (2 * a), -2 * step, 2 * step)) if a > 0 else \
-        float(xs[int(np.argmin(c3))])
-    value, final = to_v(x_best), cost(th, to_v(x_best))
-    if not final <= c3[1]:
-        value, final = v, float(c3[1])
+    par = value_parabola(lambda u: cost(th, u), v, is_gain, 0.03 if is_gain else 0.5 / fs,
+                         reach=2)
+    value, final = par.value(), cost(th, par.value())
+    if not final <= par.costs[1]:
+        value, final = v, float(par.costs[1])
     if not final < start:
         return None
     out = copy.copy(sensor)
     out.coefficients = {mag: value}
     out.intervals = {}
-    if a > 0:  # curvature of the cost in the value -> a rough 95 % interval
-        n = sum(len(r) for r in train)
-        sd = math.sqrt(max(2 * final / max(n, 1) / (2 * a), 0.0))
-        lo, hi = to_v(x_best - 1.96 * sd), to_v(x_best + 1.96 * sd)
-        out.intervals = {mag: (min(lo, hi), max(lo, hi))}
+    interval = par.interval(final, sum(len(r) for r in train))
+    if interval is not None:  # curvature of the cost in the value -> a rough 95 % interval
+        out.intervals = {mag: interval}
     return out, th, final, res

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
@@ -97,4 +97,44 @@ def corrected_cost(structure: "Structure", theta: np.ndarray, train: Sequence[Re
     except Exception:  # noqa: BLE001 - a value the chain cannot process
         return math.inf
     return x if np.isfinite(x) else math.inf
+
+
+@dataclass
+class ValueParabola:
+    """A parabola through the train costs at a fault's value and one step either side
+    (a gain in log steps, a delay in seconds): where its vertex lies, and how sharply the
+    cost rises around it (the curvature ``a`` gives the value a rough interval)."""
+
+    v: float
+    is_gain: bool
+    costs: np.ndarray
+    a: float
+    x_best: float
+
+    def value(self, x: float | None = None) -> float:
+        x = self.x_best if x is None else x
+        return self.v * math.exp(x) if self.is_gain else self.v + x
+
+    def interval(self, cost: float, n: int) -> tuple[float, float] | None:
+        """A rough 95 % interval of the value from the curvature and the residual
+        variance ``cost`` over ``n`` samples; None when the costs do not curve upward."""
+        if not self.a > 0:
+            return None
+        sd = math.sqrt(max(2 * cost / max(n, 1) / (2 * self.a), 0.0))
+        lo, hi = self.value(self.x_best - 1.96 * sd), self.value(self.x_best + 1.96 * sd)
+        return min(lo, hi), max(lo, hi)
+
+
+def value_parabola(cost_at: Callable[[float], float], v: float, is_gain: bool, step: float,
+                   reach: float) -> ValueParabola:
+    """``cost_at(value)`` at ``v`` and one ``step`` either side; the vertex within
+    ``reach`` steps, or the lowest of the three when they do not curve upward."""
+    par = ValueParabola(v, is_gain, np.empty(3), 0.0, 0.0)
+    xs = np.array([-step, 0.0, step])
+    par.costs = np.array([cost_at(par.value(x)) for x in xs])
+    a, b, _ = np.polyfit(xs, par.costs, 2) if np.all(np.isfinite(par.costs)) else (0.0, 0.0, 0.0)
+    par.a = float(a)
+    par.x_best = float(np.clip(-b / (2 * a), -reach * step, reach * step)) if a > 0 else \
+        float(xs[int(np.argmin(par.costs))])
+    return par
 

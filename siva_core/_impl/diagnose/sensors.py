@@ -19,7 +19,8 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate, Location
-from .sensor_faults import ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected, corrected_cost
+from .sensor_faults import (ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected, corrected_cost,
+                            value_parabola)
 from .settings import FAST, DiagnoseSettings
 
 
@@ -168,24 +169,17 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             theta = refine(structure, theta, corrected(train, fault, ch, v0), proc,
                            max_nfev=max(10, settings.fit_nfev // 2), uncertainty=FAST).theta
     step = (0.01 if fault is FORCE_GAIN else 0.05) if is_gain else 0.5 / fs
-    to_v = (lambda x: v0 * math.exp(x)) if is_gain else (lambda x: v0 + x)
-    xs = np.array([-step, 0.0, step])
-    costs3 = np.array([cost(theta, to_v(x)) for x in xs])
-    a, b, _ = np.polyfit(xs, costs3, 2) if np.all(np.isfinite(costs3)) else (0.0, 0.0, 0.0)
-    x_best = float(np.clip(-b / (2 * a), -3 * step, 3 * step)) if a > 0 else \
-        float(xs[int(np.argmin(costs3))])
-    value = to_v(x_best)
+    par = value_parabola(lambda u: cost(theta, u), v0, is_gain, step, reach=3)
+    value = par.value()
     res = refine(structure, theta, corrected(train, fault, ch, value), proc,
                  max_nfev=settings.fit_nfev, uncertainty=FAST)
     c.theta = res.theta
     c.coefficients = {fault.magnitude: value}
     c.parameters = structure.as_dict(res.theta)
     c.train_cost = cost(res.theta, value)
-    if a > 0:  # curvature of the cost in the fault's value -> a rough 95 % interval
-        n = sum(len(r) for r in train)
-        sd = math.sqrt(max(2 * c.train_cost / max(n, 1) / (2 * a), 0.0))
-        lo, hi = to_v(x_best - 1.96 * sd), to_v(x_best + 1.96 * sd)
-        c.intervals = {fault.magnitude: (min(lo, hi), max(lo, hi))}
+    interval = par.interval(c.train_cost, sum(len(r) for r in train))
+    if interval is not None:  # the cost's curvature in the fault's value: a rough 95 % interval
+        c.intervals = {fault.magnitude: interval}
     c.fitted = True
     c.fit_time_s = time.perf_counter() - t0
 
