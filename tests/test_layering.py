@@ -37,8 +37,6 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_band.py": {"siva_core._impl.diagnose": "the processing band"},
     "tests/test_diagnose_stages.py": {"siva_core._impl.diagnose": "the later stages"},
     "tests/test_diagnose_parallel.py": {"siva_core._impl.diagnose.parallel": "the worker pool"},
-    "benchmarks/profile_diagnose_stages.py": {"siva_core._impl.diagnose":
-                                              "wraps the diagnosis' steps to time each"},
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",
                                           "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_chain_cache.py": {"siva_core._impl.chain_cache": "clearing the memo"},
