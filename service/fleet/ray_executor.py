@@ -34,6 +34,9 @@ from .ray_trainer import DRIFT_FRESH_S, RayTrainer
 
 log = logging.getLogger("siva.service.ray")
 
+#: the service's start waits at most this long for its systems' trainers (``await_starts``)
+BOOT_WAIT_S = 120.0
+
 
 class RayExecutor:
     """Trainer hosts on a Ray cluster (``SIVA_RAY_ADDRESS``; none: a local Ray)."""
@@ -155,6 +158,19 @@ class RayExecutor:
     def start_later(self, handle: RayTrainer, delay: float = 0.0) -> None:
         """Attach ``handle`` to its host from a starter thread (``RayTrainer.start``)."""
         self.starter.submit(handle, delay)
+
+    def await_starts(self, handles: list[Any], timeout: float = BOOT_WAIT_S) -> None:
+        """At the service's start: wait (at most ``timeout`` in all) until each system's
+        first attach has ended, so that the first read after a restart of the front shows
+        the resumed epoch; the attaches run side by side, and one that fails goes on being
+        retried in the background (/healthz says so).  A PUT never waits for this."""
+        deadline = time.monotonic() + timeout
+        for h in handles:
+            if not h.tried.wait(max(0.0, deadline - time.monotonic())):
+                log.warning("the trainers of %d system(s) are still starting after %.0f s; "
+                            "the service answers meanwhile", sum(
+                                not g.tried.is_set() for g in handles), timeout)
+                return
 
     def removed(self, name: str) -> None:
         with self._lock:

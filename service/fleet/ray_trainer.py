@@ -63,6 +63,7 @@ class RayTrainer:
         self._stopping = False
         self._lock = threading.Lock()            # generation vs. stopping (attach, stop)
         self._add_ref: Any = None                # an ``add`` sent whose answer is not in yet
+        self.tried = threading.Event()           # set once a first attach has ended
         self.epoch = 0
         self.heartbeat = time.monotonic()
         self.checkpoint_error: str | None = None
@@ -85,6 +86,12 @@ class RayTrainer:
         snapshot, so the first read after a restart already shows the resumed epoch.
         True when done (attached, or stopped meanwhile: then what it started is removed);
         False to be tried again (the cluster cannot take it now: /healthz says so)."""
+        try:
+            return self._attach()
+        finally:
+            self.tried.set()
+
+    def _attach(self) -> bool:
         ray = self.executor.ray
         try:
             if self._stopping:

@@ -26,6 +26,7 @@ from service.api.app import create_app
 from service.fleet import ray_executor
 from service.fleet.ray_host import TrainerHost
 from service.settings import Settings
+from service.systems import SivaService
 
 GATE_S = 60.0  # a gate never opened fails the test rather than hanging it
 
@@ -114,6 +115,7 @@ class GatedHost(TrainerHost):
     added = threading.Event()
     gate_init = True
     gate_add = False
+    call_delay_s = 0.0
     adds: list[str] = []
 
     def __init__(self, *args: Any) -> None:
@@ -128,9 +130,15 @@ class GatedHost(TrainerHost):
         if not self.constructed:
             return gen
         GatedHost.adds.append(name)  # the front's add
+        time.sleep(GatedHost.call_delay_s)
         if GatedHost.gate_add:
             assert GatedHost.added.wait(GATE_S), "the test never let add answer"
         return gen
+
+    def poll(self, *args: Any, **kw: Any) -> dict[str, Any]:
+        if self.constructed:
+            time.sleep(GatedHost.call_delay_s)
+        return super().poll(*args, **kw)
 
 
 @pytest.fixture
@@ -141,15 +149,20 @@ def fake_ray(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRay]:
     for event in (GatedHost.built, GatedHost.added):
         event.clear()
     GatedHost.gate_init, GatedHost.gate_add, GatedHost.adds = True, False, []
+    GatedHost.call_delay_s = 0.0
     yield ray
     GatedHost.built.set()
     GatedHost.added.set()
     ray.pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _settings(tmp_path: Path, **settings: Any) -> Settings:
+    return Settings(data_dir=tmp_path / "data", executor="ray", refine_every_s=0,
+                    torch_threads=1, **{"ray_poll_s": 0.1, **settings})
+
+
 def _app(tmp_path: Path, **settings: Any) -> Any:
-    return create_app(Settings(data_dir=tmp_path / "data", executor="ray", refine_every_s=0,
-                               torch_threads=1, **{"ray_poll_s": 0.1, **settings}))
+    return create_app(_settings(tmp_path, **settings))
 
 
 def _until(pred: Callable[[], Any], timeout: float, what: str) -> Any:
@@ -240,3 +253,28 @@ def test_delete_while_add_answers_removes_what_it_started(fake_ray, tmp_path, li
         assert c.put("/v1/systems/late", json=linear).status_code == 201
         _until(lambda: list(_workers(fake_ray)) == ["late"], 60, "the new one started")
         assert c.get("/v1/systems/late/estimate").status_code == 200
+
+
+def test_a_restarted_front_shows_the_running_epoch_at_once(fake_ray, tmp_path, linear,
+                                                          oscillator) -> None:
+    """The service's own start (not a PUT) waits for its systems' first attaches, in
+    parallel: after the front was killed (its actors train on), the first read shows the
+    epoch the actor reached, not ``starting``."""
+    GatedHost.built.set()
+    old = SivaService(_settings(tmp_path))
+    old.start()
+    old.put_system("osc", linear)
+    for role, v0 in (("train", 1.0), ("validation", 0.6)):
+        old.add_recording("osc", oscillator(v0=v0), role=role, fmt="csv", filename=f"{role}.csv")
+    before = _until(lambda: (s := old.worker("osc").snapshot()).epoch >= 5 and s, 120,
+                    "trained a few epochs")
+    # the front dies (kill -9): its threads stop with it; the actor trains on
+    old.executor._stop.set()
+    old.executor.starter.close(timeout=5.0)
+    old.events.close()
+    GatedHost.call_delay_s = 1.0  # the found actor answers each call in 1 s (loaded)
+    with TestClient(create_app(_settings(tmp_path))) as c:
+        first = c.get("/v1/systems/osc/estimate").json()
+        assert first["state"] != "starting", first["state"]
+        assert first["epoch"] >= before.epoch, (first["epoch"], before.epoch)
+    assert len(fake_ray.created) == 1 and fake_ray.created[0].killed
