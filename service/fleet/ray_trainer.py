@@ -99,6 +99,7 @@ class RayTrainer:
                 return True
             host = self.executor.host(self.host_id)
             if self._stopping:  # deleted while its host was being created
+                self._reap()
                 return True
             if self._add_ref is None:
                 self._add_ref = host.add.remote(self.name)
@@ -131,16 +132,26 @@ class RayTrainer:
         return True
 
     def _reap(self) -> None:
-        """A stopped handle: remove the worker its ``add`` (sent, answer pending) started."""
+        """A handle stopped before it learnt its generation: remove the worker that its
+        ``add`` (answer pending) or the host's construction (the system was still in the
+        placement file) started, if any; its generation comes from a poll of it alone."""
+        ray = self.executor.ray
         ref, self._add_ref = self._add_ref, None
         host = self.executor.known_host(self.host_id)
-        if ref is None or host is None:
+        if host is None:
             return
         try:
-            generation = self.executor.ray.get(ref, timeout=ADD_WAIT_S)
-        except Exception:  # noqa: BLE001 - the add failed: nothing was started
+            if ref is not None:
+                ray.wait([ref], timeout=ADD_WAIT_S)
+            found = ray.get(host.poll.remote({}, False, self.name), timeout=60)
+        except Exception as exc:  # noqa: BLE001 - the host is gone or slow: nothing to do
+            log.warning("%s: cannot check host %s for a worker to remove (%s)", self.name,
+                        self.host_id, type(exc).__name__)
             return
-        self._remove(host, generation, 0.0)
+        entry = found["systems"].get(self.name)
+        generation = ((entry or {}).get("status") or {}).get("generation")
+        if generation is not None:
+            self._remove(host, generation, 0.0)
 
     def _remove(self, host: Any, generation: int, timeout: float) -> None:
         try:

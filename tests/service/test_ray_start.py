@@ -114,15 +114,20 @@ class GatedHost(TrainerHost):
     built = threading.Event()
     added = threading.Event()
     gate_init = True
+    gate_init_end = False
     gate_add = False
     call_delay_s = 0.0
     adds: list[str] = []
+    instances: list["GatedHost"] = []
 
     def __init__(self, *args: Any) -> None:
         self.constructed = False
+        GatedHost.instances.append(self)
         if GatedHost.gate_init:
             assert GatedHost.built.wait(GATE_S), "the test never let the actor start"
         super().__init__(*args)  # adds the systems placed here (an actor restart's path)
+        if GatedHost.gate_init_end:
+            assert GatedHost.built.wait(GATE_S), "the test never let the actor finish"
         self.constructed = True
 
     def add(self, name: str) -> int:
@@ -149,7 +154,7 @@ def fake_ray(monkeypatch: pytest.MonkeyPatch) -> Iterator[FakeRay]:
     for event in (GatedHost.built, GatedHost.added):
         event.clear()
     GatedHost.gate_init, GatedHost.gate_add, GatedHost.adds = True, False, []
-    GatedHost.call_delay_s = 0.0
+    GatedHost.call_delay_s, GatedHost.gate_init_end, GatedHost.instances = 0.0, False, []
     yield ray
     GatedHost.built.set()
     GatedHost.added.set()
@@ -234,6 +239,27 @@ def test_delete_while_the_actor_starts_leaves_no_trainer(fake_ray, tmp_path, lin
         assert _workers(fake_ray) == {} and GatedHost.adds == []
         assert not c.app.state.service.executor.starter.pending("gone")
         assert c.get("/healthz").status_code == 200
+
+
+def test_delete_while_the_actor_finishes_starting_removes_its_worker(fake_ray, tmp_path,
+                                                                     linear) -> None:
+    """The actor's construction already started the system's worker (it was in the
+    placement file) when the DELETE comes: the starter finds that worker and removes it."""
+    GatedHost.gate_init, GatedHost.gate_init_end = False, True
+    with TestClient(_app(tmp_path)) as c:
+        assert c.put("/v1/systems/placed", json=linear).status_code == 201
+        _until(lambda: fake_ray.created, 30, "the actor is being created")
+        inst = _until(lambda: GatedHost.instances and getattr(GatedHost.instances[-1],
+                                                              "workers", None), 30,
+                      "the construction started the placed worker")
+        assert list(inst) == ["placed"]
+        assert c.delete("/v1/systems/placed").status_code == 200
+        GatedHost.built.set()
+        _until(lambda: fake_ray.created[0].ready.done(), 30, "the actor constructed")
+        _until(lambda: _workers(fake_ray) == {}, 30, "the placed worker removed")
+        _until(lambda: not c.app.state.service.executor.starter.pending("placed"), 30,
+               "the starter done")
+        assert GatedHost.adds == []  # it found the system deleted: nothing added
 
 
 def test_delete_while_add_answers_removes_what_it_started(fake_ray, tmp_path, linear) -> None:
