@@ -60,6 +60,7 @@ ENV_VARS: dict[str, str] = {
     "SIVA_RAY_CPUS_PER_ACTOR": "ray_cpus_per_actor",
     "SIVA_RAY_POLL_S": "ray_poll_s",
     "SIVA_RAY_KEEP_ACTORS": "ray_keep_actors",
+    "SIVA_RAY_START_DELAY_S": "ray_start_delay_s",
     "SIVA_ALLOWED_HOSTS": "allowed_hosts",
     "SIVA_ALLOWED_ORIGINS": "allowed_origins",
     "SIVA_MAX_CONCURRENT_UPLOADS": "max_concurrent_uploads",
@@ -135,6 +136,8 @@ class Settings:
     ray_cpus_per_actor: float = 1.0     # logical CPUs an actor asks for; torch threads follow
     ray_poll_s: float = 0.5             # how often the front fetches snapshots and events
     ray_keep_actors: bool = False       # leave the trainer actors running after a clean stop
+    ray_start_delay_s: float = 0.0      # tests only: a trainer host's construction waits this
+                                        # long first (a cold actor on a loaded cluster)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -155,7 +158,7 @@ class Settings:
                      "monitor_yield_s",
                      "drift_rel_tol", "torch_threads", "refine_every_s", "idle_after_epochs",
                      "drift_min_rel_scatter", "stop_timeout_s", "stuck_after_s",
-                     "upload_queue_s"):
+                     "upload_queue_s", "ray_start_delay_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"setting {name} must be >= 0, got {getattr(self, name)}")
         if self.executor not in ("threads", "ray"):

@@ -133,6 +133,9 @@ class SivaService:
             self._safe_event("log_spec", name, self.store.spec(name))
             self._reconcile(name)
             self._start_worker(name, structure)
+        with self._lock:
+            started = list(self.workers.values())
+        self.executor.await_starts(started)  # Ray: the first reads show the resumed epochs
         log.info("service started: %d system(s) from %s", len(self.structures),
                  self.settings.data_dir)
         self._supervisor.start()

@@ -61,6 +61,9 @@ class ThreadExecutor:
     def trainer(self, name: str, structure: Structure) -> TrainerHandle:
         return SystemWorker(name, structure, self.store, self.settings, self.events)
 
+    def await_starts(self, handles: list[TrainerHandle]) -> None:
+        """Nothing to wait for: a trainer thread is started by ``start`` itself."""
+
     def removed(self, name: str) -> None:
         """The system was deleted (its trainer is stopped)."""
 

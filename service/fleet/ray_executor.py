@@ -7,7 +7,10 @@ each asking ``SIVA_RAY_CPUS_PER_ACTOR`` logical CPUs, spread over the cluster's 
 (``max_restarts=-1``) and resumes its systems from their checkpoints in the shared data
 dir; a front that dies (kill -9) finds its actors again by name when it restarts.
 
-The front never blocks on an actor in a read: one poller thread fetches, every
+The front never blocks on an actor in a request: a ``PUT`` returns once the spec is stored
+and a pool of starter threads (``ray_starter.py``) attaches the system to its host (creating
+the actor if needed), retrying while the cluster cannot take it; until then the system's
+state is ``starting``.  One poller thread fetches, every
 ``SIVA_RAY_POLL_S``, each host's changed snapshots and its queued event-log entries, which
 it writes to the MCAP log in order (acknowledging them on the next poll).
 A new actor incarnation (a restart) starts a new log segment for its systems, as a
@@ -26,9 +29,13 @@ from siva_core import Structure
 from ..settings import Settings
 from .ray_host import TrainerHost, settings_dict
 from .ray_placement import Placement
+from .ray_starter import Starter
 from .ray_trainer import DRIFT_FRESH_S, RayTrainer
 
 log = logging.getLogger("siva.service.ray")
+
+#: the service's start waits at most this long for its systems' trainers (``await_starts``)
+BOOT_WAIT_S = 120.0
 
 
 class RayExecutor:
@@ -52,7 +59,9 @@ class RayExecutor:
         # actor names are unique per data dir: two services may share one cluster
         self._key = hashlib.sha1(str(settings.data_dir.resolve()).encode()).hexdigest()[:10]
         self._remote = ray.remote(TrainerHost)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # short holds only: never across a Ray call
+        self._creating: dict[str, threading.Lock] = {}  # host id -> its creation lock
+        self._closed = False
         self.placement = Placement(settings.data_dir, settings.ray_systems_per_actor)
         self._hosts: dict[str, Any] = {}
         self._handles: dict[str, RayTrainer] = {}
@@ -62,7 +71,7 @@ class RayExecutor:
         self._down_since: dict[str, float] = {}
         self._full: set[str] = set()
         self._restarts: dict[str, int] = {}
-        self._retry: dict[str, tuple[float, RayTrainer]] = {}  # name -> (when, handle)
+        self.starter = Starter()
         self._stop = threading.Event()
         self._poller = threading.Thread(target=self._poll_loop, name="siva-ray-poller",
                                         daemon=True)
@@ -74,11 +83,19 @@ class RayExecutor:
 
     def host(self, host_id: str) -> Any:
         """The host actor (created if needed; an existing one is reused unless it runs with
-        other settings, then it is replaced)."""
+        other settings, then it is replaced).  Creating one can take minutes: only the
+        starter threads call this for a host that is not known yet."""
+        actor = self._hosts.get(host_id)
+        if actor is not None:
+            return actor
         with self._lock:
+            creating = self._creating.setdefault(host_id, threading.Lock())
+        with creating:  # one creation per host; other hosts and the poller go on
             actor = self._hosts.get(host_id)
             if actor is not None:
                 return actor
+            if self._closed:
+                raise RuntimeError("the Ray executor is stopping")
             actor = self._create(host_id)
             try:
                 info = self.ray.get(actor.poll.remote({}, False, ""), timeout=120)
@@ -93,9 +110,27 @@ class RayExecutor:
                 log.info("trainer host %s found running (pid %s): its systems train on, "
                          "resumed from memory rather than from checkpoint", host_id,
                          info.get("pid"))
-            self._hosts[host_id] = actor
-            self._full.add(host_id)
+            with self._lock:
+                closed = self._closed
+                if not closed:
+                    self._hosts[host_id] = actor
+                    self._full.add(host_id)
+            if closed:  # stop_all ran meanwhile and did not see this actor: no leak
+                self._kill(actor)
+                raise RuntimeError("the Ray executor is stopping")
             return actor
+
+    def known_host(self, host_id: str) -> Any | None:
+        """The host actor if it exists already (never creates one, never blocks)."""
+        return self._hosts.get(host_id)
+
+    def _kill(self, actor: Any) -> None:
+        if self.settings.ray_keep_actors:
+            return
+        try:
+            self.ray.kill(actor, no_restart=True)
+        except Exception:  # noqa: BLE001
+            pass
 
     def _create(self, host_id: str) -> Any:
         return self._remote.options(
@@ -120,6 +155,23 @@ class RayExecutor:
         self._handles[name] = handle
         return handle
 
+    def start_later(self, handle: RayTrainer, delay: float = 0.0) -> None:
+        """Attach ``handle`` to its host from a starter thread (``RayTrainer.start``)."""
+        self.starter.submit(handle, delay)
+
+    def await_starts(self, handles: list[Any], timeout: float = BOOT_WAIT_S) -> None:
+        """At the service's start: wait (at most ``timeout`` in all) until each system's
+        first attach has ended, so that the first read after a restart of the front shows
+        the resumed epoch; the attaches run side by side, and one that fails goes on being
+        retried in the background (/healthz says so).  A PUT never waits for this."""
+        deadline = time.monotonic() + timeout
+        for h in handles:
+            if not h.tried.wait(max(0.0, deadline - time.monotonic())):
+                log.warning("the trainers of %d system(s) are still starting after %.0f s; "
+                            "the service answers meanwhile", sum(
+                                not g.tried.is_set() for g in handles), timeout)
+                return
+
     def removed(self, name: str) -> None:
         with self._lock:
             self.placement.remove(name)
@@ -133,6 +185,9 @@ class RayExecutor:
         its trainers; only a crash of the front leaves them running, to be found again."""
         for h in handles:
             h.request_stop()
+        with self._lock:
+            self._closed = True  # no actor is created from now on (``host``)
+        self.starter.close(timeout=min(10.0, timeout))
         self._stop.set()
         self._poller.join(timeout=10)
         with self._lock:
@@ -145,12 +200,8 @@ class RayExecutor:
             except Exception as exc:  # noqa: BLE001
                 log.warning("stopping trainer host %s: %s", hid, exc)
         self.poll_once()  # the final snapshots' events into the log
-        if not self.settings.ray_keep_actors:
-            for a in hosts.values():
-                try:
-                    self.ray.kill(a, no_restart=True)
-                except Exception:  # noqa: BLE001
-                    pass
+        for a in hosts.values():
+            self._kill(a)
         return late
 
     def describe(self) -> dict[str, Any]:
@@ -167,18 +218,8 @@ class RayExecutor:
                 "namespace": self.settings.ray_namespace, "hosts": hosts}
 
     # ------------------------------------------------------------------ the poller
-    def retry_start(self, handle: RayTrainer) -> None:
-        """Poller: start ``handle`` again in 5 s (it could not be started now)."""
-        self._retry[handle.name] = (time.monotonic() + 5.0, handle)
-
     def _poll_loop(self) -> None:
         while not self._stop.wait(self.settings.ray_poll_s):
-            for name, (when, handle) in list(self._retry.items()):
-                if time.monotonic() >= when and self._handles.get(name) is handle:
-                    del self._retry[name]
-                    handle.start()  # re-queues itself on failure
-                elif self._handles.get(name) is not handle:
-                    self._retry.pop(name, None)
             try:
                 self.poll_once()
                 self._refresh_drift()

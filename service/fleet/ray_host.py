@@ -86,6 +86,7 @@ class TrainerHost:
     """The systems placed on this actor (service/ray_placement.py), one worker each."""
 
     def __init__(self, host_id: str, settings: dict[str, Any], cpus: float) -> None:
+        time.sleep(float(settings.get("ray_start_delay_s") or 0.0))  # tests: a cold start
         import torch
 
         from ..trainer import SystemWorker

@@ -1,9 +1,11 @@
 """The front's handle of one system trained in a Ray trainer host: what the routes call
-(``TrainerHandle``, ``executor.py``), answered from the poller's copies so that no read
-ever blocks on an actor (``ray_executor.py`` polls)."""
+(``TrainerHandle``, ``executor.py``), answered from the poller's copies so that no request
+ever blocks on an actor (``ray_executor.py`` polls; ``ray_starter.py`` attaches the
+system to its host in the background, meanwhile its state is ``starting``)."""
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from typing import Any, Protocol
 
@@ -15,16 +17,17 @@ from ..trainer import DriftReport, Snapshot, base_snapshot
 
 class HostAccess(Protocol):
     """What a handle needs of its executor (``RayExecutor``): the Ray module, the trainer
-    hosts, their reachability, the store and a restart.  A protocol, so this module does
-    not import the executor that imports it."""
+    hosts (created on demand, or only if known), their reachability, the store and the
+    starter.  A protocol, so this module does not import the executor that imports it."""
 
     ray: Any
     store: Any
 
     def host(self, host_id: str) -> Any: ...
+    def known_host(self, host_id: str) -> Any | None: ...
     def reachable(self, host_id: str) -> bool: ...
     def unreachable_for(self, host_id: str) -> float | None: ...
-    def retry_start(self, handle: "RayTrainer") -> None: ...
+    def start_later(self, handle: "RayTrainer", delay: float = 0.0) -> None: ...
 
 
 log = logging.getLogger("siva.service.ray")
@@ -37,6 +40,9 @@ DRIFT_FRESH_S = 2.0
 DRIFT_WAIT_S = 0.4
 DRIFT_FIRST_WAIT_S = 10.0
 DRIFT_WANTED_S = 60.0
+#: an attach waits this long for the host's ``add`` (then reports a start error in
+#: /healthz and waits again on the same call: an ``add`` is never sent twice)
+ADD_WAIT_S = 120.0
 #: a worker that has not seen the store's newest recording this long is notified again
 RENOTIFY_AFTER_S = 5.0
 
@@ -55,6 +61,9 @@ class RayTrainer:
         self._drift = DriftReport()
         self._status: dict[str, Any] = {}
         self._stopping = False
+        self._lock = threading.Lock()            # generation vs. stopping (attach, stop)
+        self._add_ref: Any = None                # an ``add`` sent whose answer is not in yet
+        self.tried = threading.Event()           # set once a first attach has ended
         self.epoch = 0
         self.heartbeat = time.monotonic()
         self.checkpoint_error: str | None = None
@@ -66,29 +75,97 @@ class RayTrainer:
 
     # ------------------------------------------------------------------ control
     def start(self) -> None:
-        """Start (or find) the system on its host and fetch a first snapshot, so the first
-        read after a restart already shows the resumed epoch.  Never raises: when the
-        cluster cannot take it now, /healthz says so and the poller tries again."""
+        """Queue the attach (``attach``, on a starter thread) and return at once: the PUT
+        that registered the system answers once its spec is stored, however slow the
+        cluster; until attached, reads serve the ``starting`` snapshot and uploads go to
+        the store, which the worker reads when it starts."""
+        self.executor.start_later(self)
+
+    def attach(self) -> bool:
+        """Starter thread: start (or find) the system on its host and fetch a first
+        snapshot, so the first read after a restart already shows the resumed epoch.
+        True when done (attached, or stopped meanwhile: then what it started is removed);
+        False to be tried again (the cluster cannot take it now: /healthz says so)."""
+        try:
+            return self._attach()
+        finally:
+            self.tried.set()
+
+    def _attach(self) -> bool:
         ray = self.executor.ray
         try:
+            if self._stopping:
+                self._reap()
+                return True
             host = self.executor.host(self.host_id)
-            self.generation = ray.get(host.add.remote(self.name), timeout=120)
+            if self._stopping:  # deleted while its host was being created
+                self._reap()
+                return True
+            if self._add_ref is None:
+                self._add_ref = host.add.remote(self.name)
+            ready, _ = ray.wait([self._add_ref], timeout=ADD_WAIT_S)
+            if not ready:
+                raise TimeoutError(f"the trainer host did not add it within {ADD_WAIT_S:.0f} s")
+            ref, self._add_ref = self._add_ref, None
+            generation = ray.get(ref)
+            with self._lock:
+                cancelled = self._stopping
+                if not cancelled:
+                    self.generation = generation
+            if cancelled:  # deleted (or the service stops) while it was being added
+                self._remove(host, generation, 0.0)
+                return True
             first = ray.get(host.poll.remote({}, True, self.name), timeout=60)
         except Exception as exc:  # noqa: BLE001 - cluster down or full: retried
+            if self._stopping:
+                self._reap()
+                return True
             self.start_error = f"{type(exc).__name__}: {exc}"
             log.error("%s: cannot start its trainer on Ray host %s (%s); retrying",
                       self.name, self.host_id, self.start_error)
-            self.executor.retry_start(self)
-            return
+            return False
         self.start_error = None
         entry = first["systems"].get(self.name)
         if entry is not None:
             self.update(entry)
         self.notify()  # a found-running worker may have missed a notify (front killed)
+        return True
+
+    def _reap(self) -> None:
+        """A handle stopped before it learnt its generation: remove the worker that its
+        ``add`` (answer pending) or the host's construction (the system was still in the
+        placement file) started, if any; its generation comes from a poll of it alone."""
+        ray = self.executor.ray
+        ref, self._add_ref = self._add_ref, None
+        host = self.executor.known_host(self.host_id)
+        if host is None:
+            return
+        try:
+            if ref is not None:
+                ray.wait([ref], timeout=ADD_WAIT_S)
+            found = ray.get(host.poll.remote({}, False, self.name), timeout=60)
+        except Exception as exc:  # noqa: BLE001 - the host is gone or slow: nothing to do
+            log.warning("%s: cannot check host %s for a worker to remove (%s)", self.name,
+                        self.host_id, type(exc).__name__)
+            return
+        entry = found["systems"].get(self.name)
+        generation = ((entry or {}).get("status") or {}).get("generation")
+        if generation is not None:
+            self._remove(host, generation, 0.0)
+
+    def _remove(self, host: Any, generation: int, timeout: float) -> None:
+        try:
+            ref = host.remove.remote(self.name, generation, timeout)
+            self.executor.ray.get(ref, timeout=timeout + 10)
+        except Exception as exc:  # noqa: BLE001 - the actor is gone or slow: nothing to stop
+            log.warning("%s: stopping the trainer on host %s: %s", self.name, self.host_id, exc)
 
     def notify(self) -> None:
+        host = self.executor.known_host(self.host_id)
+        if host is None or self.generation is None:
+            return  # not attached yet: the worker reads every stored record when it starts
         try:
-            self.executor.host(self.host_id).notify.remote(self.name)
+            host.notify.remote(self.name)
         except Exception:  # noqa: BLE001 - a restarting actor re-reads every record anyway
             log.warning("%s: notify failed (trainer host restarting?)", self.name)
 
@@ -96,22 +173,24 @@ class RayTrainer:
         self._stopping = True
 
     def stop(self, timeout: float = 60.0) -> None:
-        """Stop this system's worker (final checkpoint), waiting at most ``timeout``."""
-        self._stopping = True
-        if self.generation is None:
+        """Stop this system's worker (final checkpoint), waiting at most ``timeout``.  Not
+        attached yet: nothing to wait for; an attach in flight removes what it started."""
+        with self._lock:
+            self._stopping = True
+            generation = self.generation
+        host = self.executor.known_host(self.host_id)
+        if generation is None or host is None:
             return
-        try:
-            ref = self.executor.host(self.host_id).remove.remote(self.name, self.generation,
-                                                                 timeout)
-            self.executor.ray.get(ref, timeout=timeout + 10)
-        except Exception as exc:  # noqa: BLE001 - the actor is gone or slow: nothing to stop
-            log.warning("%s: stopping the trainer on host %s: %s", self.name, self.host_id, exc)
+        self._remove(host, generation, timeout)
 
     def reset_drift(self) -> DriftReport:
         ray = self.executor.ray
+        host = self.executor.known_host(self.host_id)
+        if host is None or self.generation is None:
+            raise Unavailable(f"system {self.name!r}: its trainer is starting on Ray; "
+                              "retry in a few seconds", retry_after_s=5)
         try:
-            report = ray.get(self.executor.host(self.host_id).reset_drift.remote(self.name),
-                             timeout=120)
+            report = ray.get(host.reset_drift.remote(self.name), timeout=120)
         except Exception as exc:  # noqa: BLE001 - restarting or unreachable: say so
             raise Unavailable(f"system {self.name!r}: its trainer actor is unavailable "
                               f"({type(exc).__name__}); retry in a minute",
@@ -139,9 +218,10 @@ class RayTrainer:
         return self._drift
 
     def request_drift(self) -> None:
-        if self.drift_ref is None:
+        host = self.executor.known_host(self.host_id)
+        if self.drift_ref is None and host is not None and self.generation is not None:
             try:
-                self.drift_ref = self.executor.host(self.host_id).drift_report.remote(self.name)
+                self.drift_ref = host.drift_report.remote(self.name)
             except Exception:  # noqa: BLE001 - the host is restarting: the last copy
                 self.drift_ref = None
 

@@ -120,10 +120,14 @@ def test_an_unreachable_trainer_actor_is_a_domain_error_answered_503() -> None:
     class Executor:
         ray = Ray()
 
-        def host(self, host_id: str) -> Host:
+        def known_host(self, host_id: str) -> Host:
             return Host()
 
     handle = RayTrainer(Executor(), "s", None, "h0")  # type: ignore[arg-type]
+    with pytest.raises(Unavailable, match="is starting on Ray") as starting:
+        handle.reset_drift()  # not attached to its host yet
+    assert starting.value.retry_after_s == 5
+    handle.generation = 1  # attached
     with pytest.raises(Unavailable, match="trainer actor is unavailable") as caught:
         handle.reset_drift()
     assert http_errors.status_of(caught.value) == 503

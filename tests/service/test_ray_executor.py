@@ -67,6 +67,32 @@ def _pid_gone(pid: int) -> bool:
     return False
 
 
+def test_first_put_does_not_wait_for_a_cold_actor(make_server, ray_address, linear,
+                                                  oscillator, poll) -> None:
+    """The trainer host takes 20 s to come up (SIVA_RAY_START_DELAY_S, a cold actor on a
+    loaded cluster): the PUT answers at once, the system is ``starting`` meanwhile, the
+    contract's answers and uploads work, then it trains (test_ray_start.py: the same
+    without a cluster, plus DELETE while starting)."""
+    srv = make_server(env=_ray_env(ray_address, SIVA_RAY_START_DELAY_S="20"))
+    with srv.client(timeout=10.0) as c:
+        t0 = time.monotonic()
+        r = c.put("/v1/systems/cold", json=linear)
+        assert r.status_code == 201, r.text
+        assert time.monotonic() - t0 < 5.0
+        assert c.get("/v1/systems/cold/estimate").json()["state"] == "starting"
+        assert c.put("/v1/systems/cold", json=linear).status_code == 200
+        assert c.put("/v1/systems/cold", json=dict(linear, mass={"x": 0.06})).status_code == 409
+        for role, v0 in (("train", 1.0), ("validation", 0.6)):
+            up = c.post(f"/v1/systems/cold/recordings?role={role}", content=oscillator(v0=v0),
+                        headers={"content-type": "text/csv"})
+            assert up.status_code == 202, up.text
+        assert c.get("/healthz").status_code == 200  # starting is not a failure
+        est = poll(c, "/v1/systems/cold/estimate", lambda b: b["epoch"] >= 3, timeout=300)
+        assert est["n_recordings"] == {"train": 1, "validation": 1}
+        assert len(est["data"]["train"]) == 1 and len(est["data"]["validation"]) == 1
+    srv.stop()
+
+
 def test_actor_killed_resumes_from_checkpoint_and_replays(make_server, ray_address, linear,
                                                           oscillator, poll) -> None:
     srv = make_server(env=_ray_env(ray_address))
