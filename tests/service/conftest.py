@@ -240,3 +240,19 @@ def linear() -> dict[str, Any]:
 @pytest.fixture(scope="session")
 def poll() -> Callable[..., dict[str, Any]]:
     return wait_for
+
+
+def wait_until(pred: Callable[[], Any], timeout: float, what: str, every: float = 0.2) -> Any:
+    """Call ``pred`` until it returns something truthy (returned); fails naming ``what``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = pred()
+        if got:
+            return got
+        time.sleep(every)
+    raise AssertionError(f"timeout after {timeout} s: {what}")
+
+
+@pytest.fixture
+def until() -> Callable[..., Any]:
+    return wait_until

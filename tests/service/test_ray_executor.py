@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import httpx
 import pytest
@@ -55,15 +55,6 @@ def _hosts(c: Any) -> list[dict[str, Any]]:
     return r.json()["executor"]["hosts"]
 
 
-def _until(pred: Callable[[], Any], timeout: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        got = pred()
-        if got:
-            return got
-        time.sleep(0.3)
-    raise AssertionError(f"timeout after {timeout} s: {what}")
-
 
 def _pid_gone(pid: int) -> bool:
     try:
@@ -99,7 +90,7 @@ def test_first_put_does_not_wait_for_a_cold_actor(make_server, ray_address, line
     srv.stop()
 
 
-def test_actor_killed_resumes_from_checkpoint_and_replays(make_server, ray_address, linear,
+def test_actor_killed_resumes_from_checkpoint_and_replays(until, make_server, ray_address, linear,
                                                           oscillator, poll) -> None:
     srv = make_server(env=_ray_env(ray_address))
     with srv.client() as c:
@@ -118,7 +109,7 @@ def test_actor_killed_resumes_from_checkpoint_and_replays(make_server, ray_addre
                       headers={"content-type": "text/csv"})
         assert late.status_code == 202, late.text
         late_id = late.json()["id"]
-        new = _until(lambda: [h for h in _hosts(c) if h["restarts"] >= 1 and h["reachable"]],
+        new = until(lambda: [h for h in _hosts(c) if h["restarts"] >= 1 and h["reachable"]],
                      180, "the trainer actor restarted")[0]
         assert new["pid"] != host["pid"] and new["incarnation"] != host["incarnation"]
         resumed = poll(c, "/v1/systems/osc/estimate",
@@ -137,7 +128,7 @@ def test_actor_killed_resumes_from_checkpoint_and_replays(make_server, ray_addre
     assert cmp["identical"], cmp
 
 
-def test_front_killed_finds_its_actors_again(make_server, ray_address, linear, oscillator,
+def test_front_killed_finds_its_actors_again(until, make_server, ray_address, linear, oscillator,
                                              poll) -> None:
     srv = make_server(env=_ray_env(ray_address))
     with srv.client() as c:
@@ -153,17 +144,17 @@ def test_front_killed_finds_its_actors_again(make_server, ray_address, linear, o
     assert not _pid_gone(host["pid"])
     srv.start()
     with srv.client() as c:
-        (again,) = _until(lambda: [h for h in _hosts(c) if h["pid"]], 60, "host found")
+        (again,) = until(lambda: [h for h in _hosts(c) if h["pid"]], 60, "host found")
         assert (again["pid"], again["incarnation"]) == (host["pid"], host["incarnation"])
         after = poll(c, "/v1/systems/osc/estimate", lambda b: b["epoch"] > before["epoch"],
                      timeout=120)
         assert after["n_recordings"] == {"train": 1, "validation": 1}
     srv.stop()  # a clean stop removes the actors
-    _until(lambda: _pid_gone(host["pid"]), 60, "the actor's process ended after a clean stop")
+    until(lambda: _pid_gone(host["pid"]), 60, "the actor's process ended after a clean stop")
 
 
-def test_systems_are_packed_per_actor_and_spread(make_server, ray_address, linear, oscillator,
-                                                 poll) -> None:
+def test_systems_are_packed_per_actor_and_spread(until, make_server, ray_address, linear,
+                                                 oscillator, poll) -> None:
     srv = make_server(env=_ray_env(ray_address, SIVA_RAY_SYSTEMS_PER_ACTOR="2",
                                    SIVA_RAY_CPUS_PER_ACTOR="0.5"))
     names = ["a", "b", "c"]
@@ -175,7 +166,7 @@ def test_systems_are_packed_per_actor_and_spread(make_server, ray_address, linea
             c.post(f"/v1/systems/{name}/recordings?role=validation",
                    content=oscillator(k=250.0 + 50 * k, v0=0.5),
                    headers={"content-type": "text/csv"})
-        hosts = _until(lambda: [h for h in _hosts(c) if h["pid"]] if len(
+        hosts = until(lambda: [h for h in _hosts(c) if h["pid"]] if len(
             [h for h in _hosts(c) if h["pid"]]) == 2 else None, 120, "two hosts")
         assert sorted(sum((h["systems"] for h in hosts), [])) == names
         assert sorted(len(h["systems"]) for h in hosts) == [1, 2]

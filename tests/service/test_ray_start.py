@@ -17,7 +17,7 @@ import threading
 import time
 from concurrent import futures
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import pytest
 from fastapi.testclient import TestClient
@@ -170,15 +170,6 @@ def _app(tmp_path: Path, **settings: Any) -> Any:
     return create_app(_settings(tmp_path, **settings))
 
 
-def _until(pred: Callable[[], Any], timeout: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        got = pred()
-        if got:
-            return got
-        time.sleep(0.1)
-    raise AssertionError(f"timeout after {timeout} s: {what}")
-
 
 def _workers(ray: FakeRay) -> dict[str, Any]:
     """Every trainer worker running in any (constructed, live) actor, by system."""
@@ -191,7 +182,7 @@ def _workers(ray: FakeRay) -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- the tests
 def test_first_put_answers_while_the_actor_starts_then_the_system_trains(
-        fake_ray, tmp_path, linear, oscillator) -> None:
+        until, fake_ray, tmp_path, linear, oscillator) -> None:
     with TestClient(_app(tmp_path)) as c:
         t0 = time.monotonic()
         r = c.put("/v1/systems/osc", json=linear)
@@ -215,7 +206,7 @@ def test_first_put_answers_while_the_actor_starts_then_the_system_trains(
         assert c.get("/healthz").status_code == 200  # starting is not a failure
         assert c.get("/v1/systems/osc/estimate").json()["state"] == "starting"
         GatedHost.built.set()  # the actor comes up
-        trained = _until(lambda: (b := c.get("/v1/systems/osc/estimate").json())["epoch"] >= 3
+        trained = until(lambda: (b := c.get("/v1/systems/osc/estimate").json())["epoch"] >= 3
                          and b, 120, "the system trained on Ray")
         assert trained["n_recordings"] == {"train": 1, "validation": 1}
         assert len(trained["data"]["train"]) == 1 and len(trained["data"]["validation"]) == 1
@@ -224,7 +215,7 @@ def test_first_put_answers_while_the_actor_starts_then_the_system_trains(
     assert all(a.killed for a in fake_ray.created)  # a clean stop removes the actors
 
 
-def test_delete_while_the_actor_starts_leaves_no_trainer(fake_ray, tmp_path, linear) -> None:
+def test_delete_while_the_actor_starts_leaves_no_trainer(until, fake_ray, tmp_path, linear) -> None:
     with TestClient(_app(tmp_path)) as c:
         assert c.put("/v1/systems/gone", json=linear).status_code == 201
         t0 = time.monotonic()
@@ -233,7 +224,7 @@ def test_delete_while_the_actor_starts_leaves_no_trainer(fake_ray, tmp_path, lin
         assert c.get("/v1/systems/gone/estimate").status_code == 404
         GatedHost.built.set()
         # the actor finds it unplaced, the starter finds it deleted: nothing is added
-        _until(lambda: fake_ray.created and fake_ray.created[0].ready.done(), 30,
+        until(lambda: fake_ray.created and fake_ray.created[0].ready.done(), 30,
                "the actor constructed")
         time.sleep(1.0)
         assert _workers(fake_ray) == {} and GatedHost.adds == []
@@ -241,47 +232,48 @@ def test_delete_while_the_actor_starts_leaves_no_trainer(fake_ray, tmp_path, lin
         assert c.get("/healthz").status_code == 200
 
 
-def test_delete_while_the_actor_finishes_starting_removes_its_worker(fake_ray, tmp_path,
+def test_delete_while_the_actor_finishes_starting_removes_its_worker(until, fake_ray, tmp_path,
                                                                      linear) -> None:
     """The actor's construction already started the system's worker (it was in the
     placement file) when the DELETE comes: the starter finds that worker and removes it."""
     GatedHost.gate_init, GatedHost.gate_init_end = False, True
     with TestClient(_app(tmp_path)) as c:
         assert c.put("/v1/systems/placed", json=linear).status_code == 201
-        _until(lambda: fake_ray.created, 30, "the actor is being created")
-        inst = _until(lambda: GatedHost.instances and getattr(GatedHost.instances[-1],
+        until(lambda: fake_ray.created, 30, "the actor is being created")
+        inst = until(lambda: GatedHost.instances and getattr(GatedHost.instances[-1],
                                                               "workers", None), 30,
                       "the construction started the placed worker")
         assert list(inst) == ["placed"]
         assert c.delete("/v1/systems/placed").status_code == 200
         GatedHost.built.set()
-        _until(lambda: fake_ray.created[0].ready.done(), 30, "the actor constructed")
-        _until(lambda: _workers(fake_ray) == {}, 30, "the placed worker removed")
-        _until(lambda: not c.app.state.service.executor.starter.pending("placed"), 30,
+        until(lambda: fake_ray.created[0].ready.done(), 30, "the actor constructed")
+        until(lambda: _workers(fake_ray) == {}, 30, "the placed worker removed")
+        until(lambda: not c.app.state.service.executor.starter.pending("placed"), 30,
                "the starter done")
         assert GatedHost.adds == []  # it found the system deleted: nothing added
 
 
-def test_delete_while_add_answers_removes_what_it_started(fake_ray, tmp_path, linear) -> None:
+def test_delete_while_add_answers_removes_what_it_started(until, fake_ray, tmp_path,
+                                                          linear) -> None:
     """The host added the worker but its answer is not in when the DELETE comes (the
     poller, slowed here, has not seen it either): the attach removes that worker."""
     GatedHost.gate_init, GatedHost.gate_add = False, True
     with TestClient(_app(tmp_path, ray_poll_s=600.0)) as c:
         assert c.put("/v1/systems/late", json=linear).status_code == 201
-        _until(lambda: GatedHost.adds, 60, "the host added the worker")
+        until(lambda: GatedHost.adds, 60, "the host added the worker")
         assert list(_workers(fake_ray)) == ["late"]
         t0 = time.monotonic()
         assert c.delete("/v1/systems/late").status_code == 200
         assert time.monotonic() - t0 < 3.0
         GatedHost.added.set()  # the add answers now
-        _until(lambda: _workers(fake_ray) == {}, 30, "the started worker removed")
+        until(lambda: _workers(fake_ray) == {}, 30, "the started worker removed")
         # registered again: started afresh
         assert c.put("/v1/systems/late", json=linear).status_code == 201
-        _until(lambda: list(_workers(fake_ray)) == ["late"], 60, "the new one started")
+        until(lambda: list(_workers(fake_ray)) == ["late"], 60, "the new one started")
         assert c.get("/v1/systems/late/estimate").status_code == 200
 
 
-def test_a_restarted_front_shows_the_running_epoch_at_once(fake_ray, tmp_path, linear,
+def test_a_restarted_front_shows_the_running_epoch_at_once(until, fake_ray, tmp_path, linear,
                                                           oscillator) -> None:
     """The service's own start (not a PUT) waits for its systems' first attaches, in
     parallel: after the front was killed (its actors train on), the first read shows the
@@ -292,7 +284,7 @@ def test_a_restarted_front_shows_the_running_epoch_at_once(fake_ray, tmp_path, l
     old.put_system("osc", linear)
     for role, v0 in (("train", 1.0), ("validation", 0.6)):
         old.add_recording("osc", oscillator(v0=v0), role=role, fmt="csv", filename=f"{role}.csv")
-    before = _until(lambda: (s := old.worker("osc").snapshot()).epoch >= 5 and s, 120,
+    before = until(lambda: (s := old.worker("osc").snapshot()).epoch >= 5 and s, 120,
                     "trained a few epochs")
     # the front dies (kill -9): its threads stop with it; the actor trains on
     old.executor._stop.set()
