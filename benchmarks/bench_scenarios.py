@@ -93,6 +93,10 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "visibility": sc.visibility, "size_ratio": sizes,
             "rivals": out.get("rivals", []),
             "gap_before": out["nominal"]["gap"], "reason": out["rule"].get("reason"),
+            # the sensor fault was named on the gap above the noise (verdict.sensor_above_noise)
+            "sensor_above_noise": bool(out["rule"].get("sensor_above_noise")),
+            "closures": {_label(v["kind"], v["between"]): v.get("closure")
+                         for v in out["verdicts"]},
             "noise_floor": out["where"].get("noise_floor"),
             "time_s": elapsed, "cpu_s": cpu, "load1": os.getloadavg()[0],
             "dofs": sc.info["dofs"], "samples": len(sc.train[0].time),

@@ -41,6 +41,11 @@ class DiagnoseSettings:
         the best candidate closes ``closure_min`` of it (a faint effect judged against the
         noise, not a fixed floor; issue 16: a quadratic damper 4-8 x the noise RMS closing
         0.75 of a 0.0021 gap was refused by the fixed floor).
+    sensor_excess: a sensor fault (one value; the model otherwise as it was) passes the
+        size checks above when it removes this share of the gap *above the noise floor*
+        and the interval of its value excludes the fault-free sensor
+        (``verdict.sensor_above_noise``): a right fault leaves the noise, which on a gap
+        2-3 x the floor is only 0.4-0.6 of the whole gap.
     pairs: when no single effect explains the gap to the noise, the leading singles are
         paired and each pair re-fitted jointly (``sets.fit_pair``); sets are compared by
         their validation gap (``sets.better``): more than one cause as the normal case.
@@ -115,6 +120,7 @@ class DiagnoseSettings:
     gap_min: float = 0.005
     faint_closure: float = 0.8
     faint_noise: float = 10.0
+    sensor_excess: float = 0.5
     pairs: bool = True
     pair_members: int = 3
     contribution_noise: float = 2.0
