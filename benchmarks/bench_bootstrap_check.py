@@ -5,7 +5,7 @@ Each draw is a coverage case's training record (``case.records(1, rng)``, rng =
 coverage run makes), refined from the truth as ``best`` refines (force multiplier and kick
 fitted, ``uncertainty="bootstrap"``).  From the public result (``jac``, ``residuals``,
 ``dtheta_dx``, ``block_length``) the script recomputes the moving-block pairs bootstrap
-and variants of it with its own code (no ``siva_core._impl``):
+and variants of it with its own code (only the public API):
 
 * ``reported``: ``res.std`` (the wider of the block and the parametric bootstrap);
 * ``MBB L`` / ``2L`` / ``4L``: the pairs moving-block bootstrap at the rule's block length
