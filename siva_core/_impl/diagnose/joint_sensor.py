@@ -48,7 +48,7 @@ def retune_sensor(sensor: Candidate, structure: Structure, theta: np.ndarray,
     if mag not in sensor.coefficients:
         return None
     v0 = float(sensor.coefficients[mag])
-    is_gain = mag == "gain"
+    is_gain = fault.is_gain
     fs = min(r.fs for r in train)
 
     def cost(th: np.ndarray, v: float) -> float:

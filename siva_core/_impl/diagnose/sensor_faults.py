@@ -36,16 +36,25 @@ class SensorFault:
     family: str = "sensor"
     positive: frozenset[str] = frozenset()
 
+    @property
+    def is_gain(self) -> bool:
+        return self.magnitude == "gain"
+
+    @property
+    def fault_free(self) -> float:
+        """The value of a sensor without this fault (gain 1, delay 0)."""
+        return 1.0 if self.is_gain else 0.0
+
     def describe(self, coeffs: dict[str, float]) -> str:
         v = coeffs.get(self.magnitude)
         if v is None:
             return self.explanation
-        if self.magnitude == "gain":
+        if self.is_gain:
             return f"{self.explanation} Identified gain {v:.4g} ({100 * (v - 1):+.1f} %)."
         return f"{self.explanation} Identified delay {1e3 * v:.4g} ms."
 
     def grid(self, fs: float) -> list[float]:
-        return list(GAINS) if self.magnitude == "gain" else [s / fs for s in DELAY_SAMPLES]
+        return list(GAINS) if self.is_gain else [s / fs for s in DELAY_SAMPLES]
 
 
 ACC_GAIN = SensorFault(
@@ -76,7 +85,7 @@ def corrected(records: Sequence[Recording], fault: SensorFault, channel: str,
             out.append(r)
             continue
         x = np.asarray(r.channels[channel], float)
-        if fault.magnitude == "gain":
+        if fault.is_gain:
             y = x / value
         else:  # measured(t) = true(t - delay)  ->  true(t) = measured(t + delay)
             y = np.interp(r.time + value, r.time, x)

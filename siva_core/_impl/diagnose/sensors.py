@@ -136,9 +136,13 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 
     t0 = time.perf_counter()
     fault, ch = c.effect, c.loc.between[0]
-    is_gain = fault.magnitude == "gain"
+    is_gain = fault.is_gain
     fs = min(r.fs for r in train)
     v0 = c.coefficients[fault.magnitude]
+
+    def cost(th: np.ndarray, v: float) -> float:
+        return corrected_cost(structure, th, train, fault, ch, v, proc)
+
     if fault is FORCE_GAIN and all(r.has_force(structure.dofs) for r in train):
         # the gain as a free parameter of a joint fit (one force multiplier per record):
         # the cost is so narrow in a force gain at fixed parameters (a nonlinear law's
@@ -161,8 +165,7 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             try:
                 th_s = refine(structure, theta_nom, corrected(train, fault, ch, v_scan), proc,
                               max_nfev=max(10, settings.fit_nfev // 4), uncertainty=FAST).theta
-                if corrected_cost(structure, th_s, train, fault, ch, v_scan, proc) < \
-                        corrected_cost(structure, theta, train, fault, ch, v0, proc):
+                if cost(th_s, v_scan) < cost(theta, v0):
                     theta, v0 = th_s, v_scan
             except Exception:  # noqa: BLE001 - the joint fit's start stands
                 pass
@@ -170,9 +173,6 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
         recs = corrected(train, fault, ch, v0)
         theta = _refit(structure, [theta_nom, *_ls_start(structure, recs, proc)], recs, proc,
                        max(10, settings.fit_nfev // 2))
-
-    def cost(th: np.ndarray, v: float) -> float:
-        return corrected_cost(structure, th, train, fault, ch, v, proc)
 
     if fault is not FORCE_GAIN:
         grid = _value_grid(is_gain, v0, fs)

@@ -94,7 +94,7 @@ def sensor_above_noise(top: Candidate, gap_before: float, noise_floor: float | N
     if not excess > 0 or gap_before - top.gap_after < settings.sensor_excess * excess:
         return False
     interval = (top.intervals or {}).get(top.effect.magnitude)
-    none = 1.0 if top.effect.magnitude == "gain" else 0.0
+    none = top.effect.fault_free
     return interval is not None and not interval[0] <= none <= interval[1]
 
 
