@@ -20,6 +20,15 @@ _REPLICATE_CHUNK = 16
 #: by 3-5-sample pulses (docs/perf.md): the moment-matched reading leaves 0.3-0.4 of that
 #: difference as bias, which the intervals must hold
 FORCE_SHAPE_SPREAD = 0.5
+#: the force-sensor noise is propagated as a small step (this share of its drawn size) and
+#: its response divided by the share: the linear response, which is what the linearised
+#: refit (``perturbation_solutions``) can take.  At full size the response of a nonlinear
+#: structure carries a second-order part (the squared amplitude change) that lies outside
+#: the Jacobian's span; LO-NO's force noise moves its response 25x the measurement noise
+#: along the force multiplier and the kick, and the 3 % second-order rest was read as
+#: alpha / beta: 30-45x the true effect of the force noise, intervals 1.7-1.9x too wide
+#: (docs/perf.md 6.9)
+FORCE_NOISE_STEP = 1e-3
 
 
 def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[str, np.ndarray],
@@ -29,8 +38,8 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
 
     Each replicate: the measurement noise as a phase-randomised copy of the residuals
     ``r`` (same spectrum, so the same correlation), plus -- for impulsive records -- the
-    change of the simulated, processed response when the force in the pulse gets a new
-    draw of the force sensor's noise (its level read off the force channel outside the
+    linear change of the simulated, processed response when the force in the pulse gets a
+    new draw of the force sensor's noise (``FORCE_NOISE_STEP``) (its level read off the force channel outside the
     pulse, where it measures nothing but noise).  The force noise matters because its
     effect is not stationary: it starts a free decay that stays correlated to the end.
     And, for impulsive records, a random share (``FORCE_SHAPE_SPREAD``) of the change
@@ -54,8 +63,8 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                                              force_spread=sp, force_kick=kk)
             noisy = np.repeat(rec.force[None], n_rep, axis=0)
             for b in range(n_rep):
-                noisy[b][pulse] += sigma * rng.standard_normal((int(pulse.sum()),
-                                                                noisy.shape[2]))
+                noisy[b][pulse] += FORCE_NOISE_STEP * sigma * rng.standard_normal(
+                    (int(pulse.sum()), noisy.shape[2]))
             # one batched simulation (a force per set) per chunk of replicates
             rep = lambda x, c: None if x is None else np.repeat(x, c, axis=0)
             for b0 in range(0, n_rep, _REPLICATE_CHUNK):
@@ -69,7 +78,7 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
                                                 force_kick=rep(kk, c))
                 if ok[0]:
                     good = np.flatnonzero(okb)
-                    E[b0 + good, col:col + size] += rb[good] - base[0]
+                    E[b0 + good, col:col + size] += (rb[good] - base[0]) / FORCE_NOISE_STEP
             # with a fitted kick the state after the pulse is free, which spans whatever
             # its shape between samples does: no shape term then (docs/perf.md 6.5)
             kicked = kk is not None and rec.kick_pulse is not None
