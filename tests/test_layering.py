@@ -35,6 +35,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
     "tests/test_diagnose_sets.py": {"siva_core._impl.diagnose": "sets of effects"},
     "tests/test_diagnose_band.py": {"siva_core._impl.diagnose": "the processing band"},
+    "tests/test_diagnose_spurious.py": {"siva_core._impl.diagnose": "the nominal start, the "
+                                        "pulse reading",
+                                        "siva_core._impl.simulate": "the force's readings"},
     "tests/test_diagnose_stages.py": {"siva_core._impl.diagnose": "the later stages"},
     "tests/test_diagnose_parallel.py": {"siva_core._impl.diagnose.parallel": "the worker pool"},
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",

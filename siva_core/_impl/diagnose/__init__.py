@@ -6,7 +6,8 @@ Method (docs/diagnosis.md has the full rationale and the measured results):
 1. **Nominal fit.**  The model as given is fitted to the ``--train`` records by output
    error (``refine``: simulate each record from its force, pass the simulation through the
    same processing chain as the measurement, compare), started from an equation-error
-   least-squares guess.  ``gap_before`` = output-error cost of that fit on the ``--val``
+   least-squares guess (for impact records also on states derived with the records padded
+   by zeros: the zero-phase filters ring before an early hit, ``nominal.padded_chain``).  ``gap_before`` = output-error cost of that fit on the ``--val``
    records, which are never used to fit anything.
 2. **Candidates.**  Every registered effect (``effects.EFFECTS``) at every location (each
    DOF to ground, each DOF pair) that the model does not already have.
@@ -27,6 +28,8 @@ Method (docs/diagnosis.md has the full rationale and the measured results):
    the estimated noise floor, (b) its closure is at least ``closure_min``, (c) it leaves
    clearly less gap than the best candidate of a *different* kind (``separation``), and
    (d) no validation record gets worse with it (``record_tolerance``).  Otherwise null.
+   A force gain within what the hammer pulse's reading between its samples explains is
+   never named (``pulse_reading``).
 6. **Where**: the nominal model's validation residual split per DOF, per record (against
    amplitude), early/middle/late in each decay (by share of response energy) and by
    frequency band (around the nominal linear modes), with a one-paragraph explanation.

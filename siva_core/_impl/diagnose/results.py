@@ -60,6 +60,8 @@ class Candidate:
     contribution: float = math.nan   # its own output change on the validation records
     rivals: list[dict[str, Any]] = field(default_factory=list)  # look-alikes the data
     # cannot separate from it: [{"candidate", "closure"}]
+    reading: bool = False  # a force gain the pulse's reading explains: never named
+    # (``pulse_reading``)
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:

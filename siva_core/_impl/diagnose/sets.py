@@ -31,6 +31,7 @@ from .joint_sensor import retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
 from .parallel import run_each, worker_count
+from .pulse_reading import explained_by_reading
 from .results import Candidate
 from .scoring import judge
 from .settings import FAST, DiagnoseSettings
@@ -175,7 +176,8 @@ def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: in
     """The singles worth pairing: the ``n`` best structural fits by validation closure
     (distinct places first: two laws at one place are look-alikes, told apart by the kind
     check, not a pair) that close at least a little, and the best sensor fault."""
-    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure) and c.closure > 0.05]
+    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure) and c.closure > 0.05
+              and not c.reading]
     struct = [c for c in fitted if c.category == "structure"]
     out: list[Candidate] = []
     for c in struct:
@@ -292,7 +294,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         without = [min(alone[:k] + alone[k + 1:], default=gap_before)
                    for k in range(len(alone))]
         need = settings.closure_min if verdict is not None else settings.tentative_closure
+        # a sensor member re-fitted with the set may land within the pulse-reading band
+        reading = any(m.category == "sensor" and (m.reading or explained_by_reading(
+            m, train, s.structure, s.theta)) for m in s.members)
         checks = {"relevant": _relevant(gap_before, s.closure, noise, settings),
+                  "not_pulse_reading": not reading,
                   "closure": bool(s.closure >= need),
                   "consistent": _consistent(s, settings.record_tolerance),
                   "every_member_needed": all(better(s, w, noise, settings) for w in without),

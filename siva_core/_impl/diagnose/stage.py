@@ -23,6 +23,7 @@ from .results import Candidate
 from .scoring import judge as _judge
 from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
                         select_for_fit)
+from .pulse_reading import explained_by_reading
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .verdict import look_alike
@@ -287,6 +288,16 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                 fit_extra([c], lead)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
+    for c in fitted:  # a force gain the few-sample pulse's reading explains: not a fault
+        if explained_by_reading(c, train):
+            c.reading = True
+            c.note = ("within what the hammer pulse's reading between its samples "
+                      "explains: not named")
+            _say(progress, f"{c.label()}: gain {c.coefficients.get('gain', math.nan):.4g} "
+                           "is within the pulse-reading band: not a fault")
     stage_cands = cands + sens
-    ranking = sorted(fitted, key=lambda c: -c.closure if np.isfinite(c.closure) else math.inf)
+    # best closure first; a gain the pulse reading explains after the others (never a
+    # verdict, nor the tentative first effect)
+    ranking = sorted(fitted, key=lambda c: (c.reading, -c.closure if np.isfinite(c.closure)
+                                            else math.inf))
     return ranking, stage_cands

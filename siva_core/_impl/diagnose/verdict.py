@@ -115,7 +115,7 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                             "noise_factor": settings.noise_factor,
                             "gap_min": settings.gap_min,
                             "faint_closure": settings.faint_closure}
-    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure)]
+    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure) and not c.reading]
     if not fitted:
         rule["reason"] = "no candidate could be fitted"
         return None, rule
