@@ -38,9 +38,9 @@ def noise_replicates(prob: OutputErrorProblem, theta: np.ndarray, extra: dict[st
 
     Each replicate: the measurement noise as a phase-randomised copy of the residuals
     ``r`` (same spectrum, so the same correlation), plus -- for impulsive records -- the
-    linear change of the simulated, processed response when the force in the pulse gets a
-    new draw of the force sensor's noise (``FORCE_NOISE_STEP``) (its level read off the force channel outside the
-    pulse, where it measures nothing but noise).  The force noise matters because its
+    linear change (``FORCE_NOISE_STEP``) of the simulated, processed response when the
+    force in the pulse gets a new draw of the force sensor's noise (its level read off the
+    force channel outside the pulse, where it measures nothing but noise).  The force noise matters because its
     effect is not stationary: it starts a free decay that stays correlated to the end.
     And, for impulsive records, a random share (``FORCE_SHAPE_SPREAD``) of the change
     between reading the sampled force as straight lines and with its own moments: what a

@@ -7,8 +7,9 @@ Method (docs/diagnosis.md has the full rationale and the measured results):
    error (``refine``: simulate each record from its force, pass the simulation through the
    same processing chain as the measurement, compare), started from an equation-error
    least-squares guess (for impact records also on states derived with the records padded
-   by zeros: the zero-phase filters ring before an early hit, ``nominal.padded_chain``).  ``gap_before`` = output-error cost of that fit on the ``--val``
-   records, which are never used to fit anything.
+   by zeros: the zero-phase filters ring before an early hit, ``nominal.padded_chain``).
+   ``gap_before`` = output-error cost of that fit on the ``--val`` records, which are
+   never used to fit anything.
 2. **Candidates.**  Every registered effect (``effects.EFFECTS``) at every location (each
    DOF to ground, each DOF pair) that the model does not already have.
 3. **Screening** (cheap, train records only): a score test.  Adding an element with a
