@@ -240,13 +240,21 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     if settings.pairs and not explained and (noise is None
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
+        # a greedy set that explains the gap to the noise (as ``explained`` for a single)
+        # is not searched around: only the pairs of the members, as before issue 16's
+        # fifth round (CPU: a LO-NO pair fit takes 10-30 s)
+        settled = any(o.closure >= settings.kind_check and noise is not None
+                      and o.gap_after <= settings.kind_check_noise * noise for o in options)
         # a greedy set with a sensor fault is fitted again as a pair: the fault's value
         # re-fitted with the structural model, as every other sensor + structural pair
-        done = {frozenset(m.key for m in o.members) for o in options if o.sensor is None}
+        done = {frozenset(m.key for m in o.members) for o in options
+                if o.sensor is None or settled}
         sensor = next((v for v in verdicts if v.category == "sensor"), None)
         extra = [(c, sensor) for c in later if sensor is not None]
         lead, mates = partners(ranking, members, settings)
-        faults = joiners(ranking, verdicts, scanned)
+        faults = [] if settled else joiners(ranking, verdicts, scanned)
+        if settled:
+            lead, mates = None, []
         if lead is not None:
             extra += [(lead, c) for c in [*mates, *faults]]
             mates = [lead, *mates]
