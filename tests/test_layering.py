@@ -34,6 +34,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
                                      "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
     "tests/test_diagnose_sets.py": {"siva_core._impl.diagnose": "sets of effects"},
+    "tests/test_diagnose_triples.py": {"siva_core._impl.diagnose": "sets of three effects"},
     "tests/test_diagnose_band.py": {"siva_core._impl.diagnose": "the processing band"},
     "tests/test_diagnose_spurious.py": {"siva_core._impl.diagnose": "the nominal start, the "
                                         "pulse reading",

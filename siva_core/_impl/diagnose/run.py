@@ -155,7 +155,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule = {**rule, **rule0}
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
-        psd_floor, settings, progress, later)
+        psd_floor, settings, progress, later, cands)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]

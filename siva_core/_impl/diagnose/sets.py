@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -27,6 +26,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .fitting import _intervals
+from .grow import grow_sets, joiners, partners
 from .joint_sensor import retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
@@ -34,37 +34,8 @@ from .parallel import run_each, worker_count
 from .pulse_reading import explained_by_reading
 from .results import Candidate
 from .scoring import judge
-from .settings import FAST, DiagnoseSettings
-
-
-@dataclass
-class SetFit(Candidate):
-    """A jointly fitted set: ``members`` (the effects, structural last-added carrying the
-    model), ``sensor`` the sensor member whose correction applies to the records."""
-
-    members: list[Candidate] = field(default_factory=list)
-    sensor: Candidate | None = None
-    member_intervals: list[dict[str, tuple[float, float]]] = field(default_factory=list)
-
-    def correct(self, records: Sequence[Recording]) -> list[Recording]:
-        return self.sensor.correct(records) if self.sensor is not None else list(records)
-
-    def label(self) -> str:
-        return " + ".join(m.label() for m in self.members)
-
-
-def _refit(aug: Structure, starts: Sequence[np.ndarray], train: Sequence[Recording],
-           proc: Processing, nfev: int) -> tuple[np.ndarray, float, object]:
-    from ..refine import output_error, refine
-
-    costs = output_error(aug, np.stack(list(starts)), list(train), proc)
-    k = int(np.nanargmin(costs))
-    res = refine(aug, starts[k], list(train), proc, max_nfev=nfev, horizons=None,
-                 uncertainty=FAST)
-    cost = float(output_error(aug, res.theta[None], list(train), proc)[0])
-    if not cost <= costs[k]:
-        return starts[k], float(costs[k]), res
-    return res.theta, cost, res
+from .set_fit import SetFit, _refit
+from .settings import DiagnoseSettings
 
 
 def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
@@ -249,12 +220,13 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
                gap_before: float, before_blocks: np.ndarray, noise: float | None,
                settings: DiagnoseSettings, progress: Progress | None = None,
-               later: Sequence[Candidate] = ()
+               later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = ()
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
     ``later``: structural candidates of the stages after a named sensor fault, each
-    paired with that fault (its value re-fitted with them: ``joint_sensor``)."""
+    paired with that fault (its value re-fitted with them: ``joint_sensor``).
+    ``scanned``: the first stage's screened and scanned candidates (``joiners``)."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -270,9 +242,24 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     if settings.pairs and not explained and (noise is None
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
-        done = {frozenset(m.key for m in o.members) for o in options}
+        # a greedy set that explains the gap to the noise (as ``explained`` for a single)
+        # is not searched around: only the pairs of the members, as before issue 16's
+        # fifth round (CPU: a LO-NO pair fit takes 10-30 s)
+        settled = any(o.closure >= settings.kind_check and noise is not None
+                      and o.gap_after <= settings.kind_check_noise * noise for o in options)
+        # a greedy set with a sensor fault is fitted again as a pair: the fault's value
+        # re-fitted with the structural model, as every other sensor + structural pair
+        done = {frozenset(m.key for m in o.members) for o in options
+                if o.sensor is None or settled}
         sensor = next((v for v in verdicts if v.category == "sensor"), None)
         extra = [(c, sensor) for c in later if sensor is not None]
+        lead, mates = partners(ranking, members, settings)
+        faults = [] if settled else joiners(ranking, verdicts, scanned)
+        if settled:
+            lead, mates = None, []
+        if lead is not None:
+            extra += [(lead, c) for c in [*mates, *faults]]
+            mates = [lead, *mates]
         pairs = []
         for a, b in [*combinations(members, 2), *extra]:
             if frozenset((a.key, b.key)) not in done:
@@ -283,7 +270,15 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                                             gap_before, before_blocks, settings, progress),
                         pairs, worker_count(settings))
         options += [p for p in fits if p is not None]
+        # three effects: the best pairs grown by one more member (``grow``)
+        options += grow_sets(options, [*members, *mates, *faults],
+                             structure, train, val, proc, gap_before, before_blocks, noise,
+                             settings, progress)
     single_gap = {c.key: c.gap_after for c in ranking if np.isfinite(c.gap_after)}
+    # the validation gap of every set fitted, by its members: a set of three without one
+    # member is the pair of the other two when that pair was fitted
+    set_gap = {frozenset(m.key for m in o.members): o.gap_after for o in options
+               if np.isfinite(o.gap_after)}
     cur_gap = verdict.gap_after if verdict is not None else gap_before
     chosen: SetFit | None = None
     tried = []
@@ -293,6 +288,10 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # without a member, the set is (about) the other member alone
         without = [min(alone[:k] + alone[k + 1:], default=gap_before)
                    for k in range(len(alone))]
+        keys = [m.key for m in s.members]
+        if len(keys) > 2:
+            without = [set_gap.get(frozenset(keys[:k] + keys[k + 1:]), w)
+                       for k, w in enumerate(without)]
         need = settings.closure_min if verdict is not None else settings.tentative_closure
         # a sensor member re-fitted with the set may land within the pulse-reading band
         reading = any(m.category == "sensor" and (m.reading or explained_by_reading(

@@ -51,6 +51,12 @@ class DiagnoseSettings:
         their validation gap (``sets.better``): more than one cause as the normal case.
     pair_members: how many structural singles (distinct places) are paired, plus the
         best sensor fault.
+    pair_partners: the leading member is also paired with the best fit (by train cost)
+        of this many kinds none of the members has (``sets.partners``): a pair's second
+        effect, fitted alone, may close little of the validation gap.
+    set_beam: sets of three (issue 16: two structural effects and a sensor fault) are
+        looked for by growing this many of the best pairs (by validation gap) by one more
+        member each, fitted jointly (``sets.grow_sets``); 0 = pairs only.
     contribution_noise: every named effect must change the simulated validation outputs
         by more than this multiple of the spectral noise floor (its own contribution,
         ``sets.contributions``): an element fitted to a residue moves them less than the
@@ -123,6 +129,8 @@ class DiagnoseSettings:
     sensor_excess: float = 0.5
     pairs: bool = True
     pair_members: int = 3
+    pair_partners: int = 2
+    set_beam: int = 2
     contribution_noise: float = 2.0
     ee_strong: float = 0.25
     family_keep: float = 0.1
