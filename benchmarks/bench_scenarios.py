@@ -8,7 +8,10 @@ those at >= 5 x.  Each row has the wall time, the process CPU time and the 1-min
 average at the end of the case (the machine is shared: the wall time depends on the load).
 
 Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
-[--limit WALL_S | --cpu-limit CPU_S]``
+[--limit WALL_S | --cpu-limit CPU_S] [--force-reading continuous|linear]``
+(``--force-reading linear``: the records driven as before issue 16's fifth round, to
+reproduce the batches reported up to 15000-15159; the default drives them with the
+continuous hammer pulse, ``scenarios.FORCE_READINGS``)
 (``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs).
 Seeds used for development are listed in docs/diagnosis.md; a reported rate must come from
 seeds never run before the rules were frozen.
@@ -100,6 +103,7 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "noise_floor": out["where"].get("noise_floor"),
             "time_s": elapsed, "cpu_s": cpu, "load1": os.getloadavg()[0],
             "dofs": sc.info["dofs"], "samples": len(sc.train[0].time),
+            "force_reading": sc.info["force_reading"],
             "timing_s": out.get("timing_s", {})}
 
 
@@ -139,6 +143,11 @@ def main() -> int:
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--summarise", metavar="FILES")
+    ap.add_argument("--force-reading", choices=scenarios.FORCE_READINGS,
+                    default="continuous",
+                    help="how the hammer drives the records: the continuous pulse (default) "
+                         "or straight lines between its samples (the batches reported up "
+                         "to 15000-15159)")
     ap.add_argument("--limit", type=float, default=0.0,
                     help="seconds of wall time per case; a case over it counts as wrong")
     ap.add_argument("--cpu-limit", type=float, default=0.0,
@@ -157,7 +166,7 @@ def main() -> int:
         sc = None
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            sc = scenarios.draw(seed)
+            sc = scenarios.draw(seed, args.force_reading)
             print(scenarios.describe(sc), flush=True)
             if args.limit:
                 signal.alarm(int(args.limit))

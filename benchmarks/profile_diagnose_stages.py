@@ -60,10 +60,12 @@ def main() -> int:
     ap.add_argument("--seeds", required=True)
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--force-reading", choices=scenarios.FORCE_READINGS, default="continuous",
+                    help="as bench_scenarios.py's (linear: the batches reported before)")
     args = ap.parse_args()
     rows = []
     for seed in parse_seeds(args.seeds):
-        sc = scenarios.draw(seed)
+        sc = scenarios.draw(seed, args.force_reading)
         print(scenarios.describe(sc), flush=True)
         prof = cProfile.Profile(time.process_time)
         c0, w0 = time.process_time(), time.perf_counter()
