@@ -89,3 +89,23 @@ def test_refine_with_a_stop_that_never_fires_is_unchanged():
                stop=lambda stage, last, it, cost, prob: it >= 1)
     assert np.array_equal(a.theta, b.theta) and not a.stopped and not b.stopped
     assert c.stopped and c.nfev < a.nfev
+
+
+def test_a_look_alike_of_the_leader_stopped_early_is_fitted_in_full():
+    """The full matrix's large quadratic damper NO-ground on LO-NO: the cubic damper there
+    leads (closure 0.99) and the quadratic one's fit, stopped early against it, closed
+    0.25, so the cubic damper was named.  A look-alike law at the leader's place is its
+    rival, not a loser: fitted in full it closes 0.999 and is named."""
+    import sys
+    from pathlib import Path
+
+    from siva_core import diagnose
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import matrix
+
+    mc = matrix.parse("lono:quadratic_damper:NO-ground:large")
+    train, val = mc.records()
+    diag = diagnose(mc.nominal(), train, val, "auto")
+    assert diag.verdict is not None
+    assert diag.verdict.label() == "quadratic_damper NO-ground"

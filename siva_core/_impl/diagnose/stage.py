@@ -213,6 +213,9 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             return
         _say(progress, f"{c.label()}: its stopped fit closes {c.closure:.3f} on the "
                        "validation records: fitted in full")
+        refit_in_full(c, second)
+
+    def refit_in_full(c: Candidate, second: Callable[[Candidate], bool]) -> None:
         c.stopped, c.note = False, ""
         if not fit_first(c, stop=False):
             return
@@ -273,6 +276,16 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     # every other place, then look-alikes again if the place moved
     lead = _lead(chosen)
     if settings.place_check and lead is not None and lead.closure >= settings.step_min:
+        # a look-alike law at the leader's place whose fit was stopped early against it
+        # is fitted in full: it is the leader's rival, not a loser (the full matrix's
+        # quadratic damper NO-ground, large: its stopped fit closed 0.25, the cubic
+        # damper 0.99 was named; fitted in full the quadratic one closes 0.999)
+        for c in [c for c in chosen if c.stopped and c.loc.between == lead.loc.between
+                  and look_alike(lead.effect.kind, c.effect.kind)]:
+            _say(progress, f"{c.label()}: a look-alike of the leader stopped early: "
+                           "fitted in full")
+            refit_in_full(c, lambda x: True)
+        lead = _lead(chosen) or lead
         # look-alike laws are always fitted beside the leader (issue 16: a cubic damper
         # NO-ground closing 0.992 was named where a quadratic one was true); every kind
         # of its role when it leaves part of the gap
