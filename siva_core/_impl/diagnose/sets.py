@@ -25,7 +25,6 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .fitting import _intervals
 from .grow import grow_sets, joiners, partners
 from .joint_sensor import retune_sensor
 from .model_edit import augmented
@@ -34,7 +33,7 @@ from .parallel import run_each, worker_count
 from .pulse_reading import explained_by_reading
 from .results import Candidate
 from .scoring import judge
-from .set_fit import SetFit, _refit
+from .set_fit import SetFit, _refit, finish_set
 from .settings import DiagnoseSettings
 
 
@@ -85,15 +84,8 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
     except Exception as exc:  # noqa: BLE001 - a pair that cannot be fitted is not a set
         _say(progress, f"pair {a.label()} + {b.label()}: fit failed ({exc})")
         return None
-    out.train_cost = cost
-    vals = out.structure.as_dict(out.theta)
-    out.coefficients = {k: vals[p] for k, p in out.names.items()}
-    out.intervals = _intervals(res, out.structure, out.names)
-    out.member_intervals = [_intervals(res, out.structure, m.names)
-                            if m.category == "structure" else dict(m.intervals)
-                            for m in out.members]
+    finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
     out.fit_time_s = time.perf_counter() - t0
-    judge(out, val, proc, gap_before, before_blocks, progress)
     return out
 
 
