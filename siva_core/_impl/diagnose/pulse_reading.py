@@ -15,7 +15,7 @@ what the right coulomb left and the set rule named both).
 
 On a 1-DOF model the one accelerometer's gain is a force gain (1/g), judged the same way.
 
-The pulse's *impulse* is uncertain too (issue 16, fifth round: the generator now drives its
+The pulse's *impulse* is uncertain too (issue 16, sixth round: the generator now drives its
 records with the continuous half-sine, as a real hammer and the issue's withheld sets do).
 Every reading of the samples delivers their sum x dt; the half-sines that pass through the
 same samples (and leave the samples around them at zero) deliver 2 P w / pi, which for a
