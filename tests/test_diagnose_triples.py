@@ -7,59 +7,57 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from siva_core import EFFECTS, Processing, Structure
-from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
+from siva_core import Processing, Structure
+from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location,
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.scoring import judge, validation_gap
 from siva_core._impl.diagnose.sensor_faults import ACC_GAIN, corrected
 from siva_core._impl.diagnose.sets import choose_set
 from siva_core._impl.diagnose.where import spectral_noise_floor
+# the pair tests' structure, effects and single fits (the same two-DOF case)
+from test_diagnose_sets import FC, G, K3, NOMINAL, TWO, XY, _single
 
-TWO = {"name": "two", "dofs": ["x", "y"], "mass": {"x": 1.0, "y": 0.5},
-       "elements": [{"kind": "spring", "between": ["x", "ground"], "params": {"k": "k1"}},
-                    {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c1"}},
-                    {"kind": "spring", "between": ["x", "y"], "params": {"k": "k2"}},
-                    {"kind": "damper", "between": ["x", "y"], "params": {"c": "c2"}}]}
-NOMINAL = {"k1": 6000.0, "c1": 1.0, "k2": 3000.0, "c2": 0.5}
-G = Location(0, -1, ("x", "ground"))
-XY = Location(0, 1, ("x", "y"))
-K3, FC, GAIN = 2.0e7, 0.6, 1.15
+GAIN = 1.15
 
 
-def _single(st: Structure, kind: str, loc: Location, value: float, train, val, proc, gap,
-            blocks) -> Candidate:
-    """A structural single as a stage would have fitted it (here: at its true size)."""
-    eff = EFFECTS[kind]
-    aug, names = augmented(st, eff, loc, {eff.magnitude: abs(value)})
-    c = Candidate(eff, loc, {}, fitted=True, structure=aug, names=names,
-                  theta=aug.vector({**NOMINAL, names[eff.magnitude]: value}))
-    c.coefficients = {eff.magnitude: value}
-    c.train_cost = 0.0
-    judge(c, val, proc, gap, blocks)
-    return c
+def _records(gain: float | None):
+    """Train and validation impacts of TWO with the cubic spring and the coulomb, the
+    accelerometer on x reading ``gain`` x the truth (None: a right sensor)."""
+    gen = with_effect(with_effect(Structure.from_dict(TWO), "cubic_spring", ("x", "ground"),
+                                  {"k3": K3}), "coulomb", ("x", "y"), {"fc": FC})
+    theta = gen.vector(NOMINAL)
+    out = []
+    for amps, seed in (([60.0, 150.0], 1), ([30.0, 200.0], 2)):
+        recs = synthetic_impacts(gen, theta, amps, dof="y", fs=1024.0, duration=2.0,
+                                 seed=seed)
+        # corrected() divides: 1 / gain makes the reading gain x the truth
+        out.append(recs if gain is None else corrected(recs, ACC_GAIN, "acc_x", 1 / gain))
+    return out
+
+
+def _candidates(st: Structure, train, val, proc, gain: float):
+    """(gap, blocks, noise floor, [cubic spring, coulomb, accelerometer gain ``gain``]) as
+    a stage would have fitted them (at their true sizes; train costs 0)."""
+    gap, blocks = validation_gap(st, st.vector(NOMINAL), val, proc)
+    noise = spectral_noise_floor(st, val, proc, st.vector(NOMINAL))
+    singles = [_single(st, "cubic_spring", G, K3, train, val, proc, gap, blocks),
+               _single(st, "coulomb", XY, FC, train, val, proc, gap, blocks)]
+    s = Candidate(ACC_GAIN, Location(0, -1, ("acc_x", "sensor")), {}, fitted=True,
+                  structure=st, theta=st.vector(NOMINAL))
+    s.coefficients = {"gain": gain}
+    judge(s, val, proc, gap, blocks)
+    for c in [*singles, s]:
+        c.train_cost = 0.0
+    return gap, blocks, noise, [*singles, s]
 
 
 @pytest.fixture(scope="module")
 def triple_case():
     st = Structure.from_dict(TWO)
-    gen = with_effect(with_effect(st, "cubic_spring", ("x", "ground"), {"k3": K3}),
-                      "coulomb", ("x", "y"), {"fc": FC})
-    theta = gen.vector(NOMINAL)
-    # the accelerometer on x reads GAIN x the truth (corrected() divides: 1/GAIN makes it)
-    train = corrected(synthetic_impacts(gen, theta, [60.0, 150.0], dof="y", fs=1024.0,
-                                        duration=2.0, seed=1), ACC_GAIN, "acc_x", 1 / GAIN)
-    val = corrected(synthetic_impacts(gen, theta, [30.0, 200.0], dof="y", fs=1024.0,
-                                      duration=2.0, seed=2), ACC_GAIN, "acc_x", 1 / GAIN)
+    train, val = _records(GAIN)
     proc = Processing.none()
-    gap, blocks = validation_gap(st, st.vector(NOMINAL), val, proc)
-    noise = spectral_noise_floor(st, val, proc, st.vector(NOMINAL))
-    a = _single(st, "cubic_spring", G, K3, train, val, proc, gap, blocks)
-    b = _single(st, "coulomb", XY, FC, train, val, proc, gap, blocks)
-    s = Candidate(ACC_GAIN, Location(0, -1, ("acc_x", "sensor")), {}, fitted=True,
-                  structure=st, theta=st.vector(NOMINAL))
-    s.coefficients, s.train_cost = {"gain": GAIN}, 0.0
-    judge(s, val, proc, gap, blocks)
-    return st, train, val, proc, gap, blocks, noise, [a, b, s]
+    gap, blocks, noise, singles = _candidates(st, train, val, proc, GAIN)
+    return st, train, val, proc, gap, blocks, noise, singles
 
 
 @pytest.mark.slow
@@ -87,22 +85,9 @@ def test_a_third_member_that_adds_nothing_is_not_named(triple_case):
     """The same structural pair on records *without* the fault: a gain grown onto it
     changes nothing, the pair is named alone."""
     st, _, _, proc, _, _, _, _ = triple_case
-    gen = with_effect(with_effect(st, "cubic_spring", ("x", "ground"), {"k3": K3}),
-                      "coulomb", ("x", "y"), {"fc": FC})
-    theta = gen.vector(NOMINAL)
-    train = synthetic_impacts(gen, theta, [60.0, 150.0], dof="y", fs=1024.0, duration=2.0,
-                              seed=1)
-    val = synthetic_impacts(gen, theta, [30.0, 200.0], dof="y", fs=1024.0, duration=2.0,
-                            seed=2)
-    gap, blocks = validation_gap(st, st.vector(NOMINAL), val, proc)
-    noise = spectral_noise_floor(st, val, proc, st.vector(NOMINAL))
-    a = _single(st, "cubic_spring", G, K3, train, val, proc, gap, blocks)
-    b = _single(st, "coulomb", XY, FC, train, val, proc, gap, blocks)
-    s = Candidate(ACC_GAIN, Location(0, -1, ("acc_x", "sensor")), {}, fitted=True,
-                  structure=st, theta=st.vector(NOMINAL))
-    s.coefficients, s.train_cost = {"gain": 1.03}, 0.0
-    judge(s, val, proc, gap, blocks)
-    ranking = sorted([a, b, s], key=lambda c: -c.closure if np.isfinite(c.closure) else 9)
+    train, val = _records(None)
+    gap, blocks, noise, singles = _candidates(st, train, val, proc, 1.03)
+    ranking = sorted(singles, key=lambda c: -c.closure if np.isfinite(c.closure) else 9)
     _, named, _ = choose_set(None, [], ranking, st, train, val, proc, gap, blocks, noise,
                              DiagnoseSettings(fit_nfev=20))
     assert sorted(m.label() for m in named) == ["coulomb x-y", "cubic_spring x-ground"]
