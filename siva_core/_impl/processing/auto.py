@@ -33,9 +33,10 @@ def auto_settings(recordings: Recording | Iterable[Recording], dofs: Sequence[st
        (after the force pulse when the force is impulsive): Welch PSD with ~0.25 Hz
        resolution (coarser for short records), noise floor N = median PSD (that of the
        upper half of the band when lower).
-       *Stationary lines* (narrow peaks whose level stays within a factor 4 between the
-       first and last third of a decaying record: mains hum, tones; in records that do
-       not decay, narrow peaks at multiples of 50/60 Hz) are noise.  Every other local
+       *Stationary lines* (narrow peaks at a 50/60 Hz harmonic whose level stays within a
+       factor 4 between the first and last third of a decaying record, or any such peak
+       in a record that does not decay: mains hum) are noise; a lightly damped mode keeps
+       its level too, so peaks elsewhere are never notched.  Every other local
        maximum 20 dB above N (and 6 dB above its surroundings) is a *significant peak*.
        - high-pass ``fh``: as low as the noise allows, within [f1/6, f1/2] where f1 is
          the lowest significant peak within 20 dB of the strongest one.  Integrating p
