@@ -140,7 +140,12 @@ def test_a_stopped_set_the_validation_does_not_show_losing_is_fitted_again():
     settings = DiagnoseSettings()
     assert set_stop(math.inf, settings) is None
     rule = set_stop(1e-3, settings)
-    assert rule is not None and rule(0, True, settings.stop_after, 2e-2, None)
+    assert rule is not None
+    it = settings.stop_after
+    assert not rule(0, True, it - 1, 8e-2, None)  # too early
+    assert not rule(0, True, it, 3e-2, None)  # far above, but still more than halving
+    assert rule(0, True, it + 1, 2e-2, None)  # far above and descending slowly
+    assert not set_stop(1e-3, settings)(0, True, it, 5e-3, None)  # within stop_ratio
 
     def make(gap: float, stopped: bool) -> SetFit:
         s = SetFit(EFFECTS["damper"], PLACE, {}, stopped=stopped)

@@ -2,6 +2,7 @@
 joint re-fit every set shares (best of several starts, then one refine)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -76,8 +77,27 @@ def set_stop(reference: float, settings: DiagnoseSettings) -> StopRule | None:
     sets are chosen by validation gap and must beat the best single (LO-NO two:0: the
     pairs without coulomb NO-ground ended 85-150 x above the greedy set, 13 s each on a
     friction model); a stopped set the validation records do not show losing is fitted
-    in full (``refit_stopped``)."""
-    return cannot_win(reference, settings)
+    in full (``refit_stopped``).
+
+    Unlike a single's fit, a joint fit can start far from its optimum (one member's fit
+    plus the other's coefficients count the shared part twice: coulomb NO-ground + coulomb
+    LO-NO of two:0 started 150 x above the single and ended 45 x lower), so it is stopped
+    only while it also descends slowly: the last iteration removed less than
+    1 - ``SET_DESCENT`` of its cost."""
+    rule = cannot_win(reference, settings)
+    if rule is None:
+        return None
+    previous = [math.inf]
+
+    def stop(stage: int, last: bool, iteration: int, cost: float, prob: object = None
+             ) -> bool:
+        before, previous[0] = previous[0], cost
+        return bool(rule(stage, last, iteration, cost, prob) and cost > SET_DESCENT * before)
+    return stop
+
+
+#: a set's joint fit still halving its cost per iteration is never stopped (``set_stop``)
+SET_DESCENT = 0.5
 
 
 def refit_stopped(options: Sequence[SetFit], again: Callable[[SetFit], SetFit | None],
