@@ -146,6 +146,9 @@ def test_a_stopped_set_the_validation_does_not_show_losing_is_fitted_again():
     assert not rule(0, True, it, 3e-2, None)  # far above, but still more than halving
     assert rule(0, True, it + 1, 2e-2, None)  # far above and descending slowly
     assert not set_stop(1e-3, settings)(0, True, it, 5e-3, None)  # within stop_ratio
+    # a member alone within stop_ratio of the reference: the set can get there, no stop
+    assert set_stop(1e-3, settings, reachable=5e-3) is None
+    assert set_stop(1e-3, settings, reachable=5e-2) is not None
 
     def make(gap: float, stopped: bool) -> SetFit:
         s = SetFit(EFFECTS["damper"], PLACE, {}, stopped=stopped)

@@ -54,7 +54,7 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
         return None
     t0 = time.perf_counter()
     nfev = settings.fit_nfev
-    stop = set_stop(against, settings)
+    stop = set_stop(against, settings, min(base.train_cost, c.train_cost))
     stopped = False
     try:
         vals = base.structure.as_dict(base.theta)

@@ -47,7 +47,7 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
     the best train cost known (``set_fit.set_stop``); a fit stopped against it is marked
     ``stopped`` (its sensor value is not re-tuned)."""
     t0 = time.perf_counter()
-    stop = set_stop(against, settings)
+    stop = set_stop(against, settings, min(a.train_cost, b.train_cost))
     if a.category == "sensor" and b.category == "sensor":
         return None
     if a.category == "sensor":
