@@ -10,7 +10,8 @@ import numpy as np
 from siva_core import (EFFECTS, DiagnoseSettings, Processing, Structure, refine,
                        synthetic_impacts, with_effect)
 from siva_core._impl.diagnose import Candidate, Location
-from siva_core._impl.diagnose.early_stop import cannot_win
+from siva_core._impl.diagnose.early_stop import cannot_win, gain_limit
+from siva_core._impl.diagnose.set_fit import SetFit, refit_stopped, set_stop
 from siva_core._impl.diagnose.fitting import fit_candidate
 from siva_core._impl.effects import Amplitudes
 
@@ -109,3 +110,59 @@ def test_a_look_alike_of_the_leader_stopped_early_is_fitted_in_full():
     diag = diagnose(mc.nominal(), train, val, "auto")
     assert diag.verdict is not None
     assert diag.verdict.label() == "quadratic_damper NO-ground"
+
+
+def test_a_later_stage_stops_a_fit_that_removes_a_tenth_of_the_leaders_gain():
+    """After a first effect every candidate sits near the stage's starting cost (LO-NO
+    two:0, stage 2: 0.00045-0.00064 from 0.00064): the ratio to the leader never fires,
+    the share of the leader's gain does (``gain_limit``)."""
+    settings = DiagnoseSettings()
+    base, lead = 6.4e-4, 4.5e-4
+    limit = gain_limit(base, lead, settings.stop_ratio)
+    assert lead < limit < base
+    assert math.isclose(base - limit, (base - lead) / settings.stop_ratio)
+    stop = cannot_win(lead, settings, base_cost=base)
+    it = settings.stop_after
+    assert stop(1, True, it, 6.35e-4, None)  # removed 0.05e-4 of the leader's 1.9e-4
+    assert not stop(1, True, it, 6.0e-4, None)  # a fifth of it: fitted on
+    assert not stop(1, True, it - 1, 6.35e-4, None)  # too early
+    # the first stage (no base) keeps the ratio to the leader alone
+    plain = cannot_win(lead, settings)
+    assert not plain(1, True, it, 6.35e-4, None)
+    assert gain_limit(math.nan, lead, 10.0) == math.inf
+    assert gain_limit(lead, lead, 10.0) == math.inf  # the leader removed nothing
+
+
+def test_a_stopped_set_the_validation_does_not_show_losing_is_fitted_again():
+    """The joint fits of sets stop against the best set known (``set_stop``); a stopped
+    set within twice the separation margin of the best full fit's gap is re-fitted
+    without the stop (``refit_stopped``), one far above it is kept as it is."""
+    settings = DiagnoseSettings()
+    assert set_stop(math.inf, settings) is None
+    rule = set_stop(1e-3, settings)
+    assert rule is not None
+    it = settings.stop_after
+    assert not rule(0, True, it - 1, 8e-2, None)  # too early
+    assert not rule(0, True, it, 3e-2, None)  # far above, but still more than halving
+    assert rule(0, True, it + 1, 2e-2, None)  # far above and descending slowly
+    assert not set_stop(1e-3, settings)(0, True, it, 5e-3, None)  # within stop_ratio
+    # a member alone within stop_ratio of the reference: the set can get there, no stop
+    assert set_stop(1e-3, settings, reachable=5e-3) is None
+    assert set_stop(1e-3, settings, reachable=5e-2) is not None
+
+    def make(gap: float, stopped: bool) -> SetFit:
+        s = SetFit(EFFECTS["damper"], PLACE, {}, stopped=stopped)
+        s.gap_after = gap
+        return s
+
+    best, near, far = make(0.010, False), make(0.020, True), make(0.5, True)
+    again: list[SetFit] = []
+
+    def refit(s: SetFit) -> SetFit:
+        again.append(s)
+        return make(s.gap_after / 2, False)
+
+    out = refit_stopped([best, near, far], refit, settings)
+    assert again == [near]
+    assert out[0] is best and out[2] is far
+    assert not out[1].stopped and out[1].gap_after == 0.010

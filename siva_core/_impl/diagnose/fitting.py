@@ -170,7 +170,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
                   train: Sequence[Recording], proc: Processing, amp: Amplitudes,
                   settings: DiagnoseSettings, force_scale: float,
                   nominal_cost: float = math.inf, leader_cost: float = math.inf,
-                  leader: Candidate | None = None) -> None:
+                  leader: Candidate | None = None, base_cost: float = math.nan) -> None:
     """Fit nominal + candidate by output error on the train records (in place).
 
     Starts: the nominal fit with the new magnitude at a few multiples of the score test's
@@ -184,7 +184,8 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
 
     ``leader_cost``: the best train cost fitted so far in this stage (``leader``: the
     structural candidate with the best one); a fit that cannot come near it is cut short
-    (``cannot_win``; ``c.stopped``)."""
+    (``cannot_win``; ``c.stopped``); ``base_cost``: the stage's starting train cost when
+    the stage builds on an earlier effect (``early_stop.gain_limit``)."""
     from ..refine import output_error, refine
 
     t0 = time.perf_counter()
@@ -232,7 +233,7 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
             best_cost, th0 = float(costs[k]), batch[k]
     if th0 is None:
         raise ValueError("every start diverges")
-    stop = cannot_win(leader_cost, settings, leader, train, proc)
+    stop = cannot_win(leader_cost, settings, leader, train, proc, base_cost)
     res = refine(aug, th0, list(train), proc, max_nfev=settings.fit_nfev,
                  uncertainty=FAST, stop=stop)
     c_ref = float(output_error(aug, res.theta[None], list(train), proc)[0])
@@ -265,7 +266,9 @@ def fit_candidate(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     if c.stopped:
         c.note = ((c.note + "; ") if c.note else "") + (
             f"fit stopped early: train cost {cost:.3g} > {settings.stop_ratio:g} x the "
-            f"leader's {leader_cost:.3g}")
+            f"leader's {leader_cost:.3g}" if not np.isfinite(base_cost) else
+            f"fit stopped early: train cost {cost:.3g}, less than 1/{settings.stop_ratio:g} "
+            f"of the leader's gain from {base_cost:.3g} to {leader_cost:.3g}")
     c.fit_time_s = time.perf_counter() - t0
 
 

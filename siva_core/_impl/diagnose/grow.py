@@ -14,6 +14,7 @@ sub-sets is ``sets.choose_set``'s business.
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Sequence
 
@@ -27,7 +28,7 @@ from .model_edit import augmented
 from .outputs import Progress, _say
 from .parallel import run_each, worker_count
 from .results import Candidate
-from .set_fit import SetFit, _refit, finish_set
+from .set_fit import SetFit, _refit, finish_set, refit_stopped, set_stop
 from .settings import DiagnoseSettings
 
 
@@ -45,13 +46,16 @@ def can_grow(base: SetFit, c: Candidate) -> bool:
 def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recording],
          val: Sequence[Recording], proc: Processing, gap_before: float,
          before_blocks: np.ndarray, settings: DiagnoseSettings,
-         progress: Progress | None = None) -> SetFit | None:
+         progress: Progress | None = None, against: float = math.inf) -> SetFit | None:
     """``base`` plus the fitted single ``c``, re-fitted jointly and judged on the
-    validation records; None when it cannot be built or simulated."""
+    validation records; None when it cannot be built or simulated.  ``against``: the
+    best train cost known (``set_fit.set_stop``, as ``sets.fit_pair``)."""
     if not can_grow(base, c) or base.structure is None or base.theta is None:
         return None
     t0 = time.perf_counter()
     nfev = settings.fit_nfev
+    stop = set_stop(against, settings, min(base.train_cost, c.train_cost))
+    stopped = False
     try:
         vals = base.structure.as_dict(base.theta)
         if c.category == "sensor":  # the set's model on the records c corrects
@@ -61,7 +65,7 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
                      if p in vals and p in structure.free}
             if nom_c:
                 starts.append(aug.vector({**vals, **nom_c}))
-            theta, cost, res = _refit(aug, starts, c.correct(train), proc, nfev)
+            theta, cost, res = _refit(aug, starts, c.correct(train), proc, nfev, stop)
             sensor = c
             effect, loc, shape, amps = base.effect, base.loc, dict(base.shape), base.amplitudes
         else:  # c joins the model, on the records the set's sensor member corrects
@@ -69,10 +73,11 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
             aug, names = augmented(base.structure, c.effect, c.loc, scales)
             start = {**vals, **{names[k]: v for k, v in c.coefficients.items()}}
             theta, cost, res = _refit(aug, [aug.vector(start)], base.correct(train), proc,
-                                      nfev)
+                                      nfev, stop)
             sensor = base.sensor
             effect, loc, shape, amps = c.effect, c.loc, dict(c.shape), c.amplitudes
-        if sensor is not None:  # the fault's value re-fitted with the grown model
+        stopped = bool(getattr(res, "stopped", False))
+        if sensor is not None and not stopped:  # the fault's value re-fitted with it
             again = retune_sensor(sensor, aug, theta, train, proc, max(10, nfev // 2))
             if again is not None:
                 sensor, theta, cost, res = again
@@ -82,7 +87,10 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
     members = [sensor if m.category == "sensor" else m for m in base.members]
     members += [sensor] if c.category == "sensor" else [c]
     out = SetFit(effect, loc, shape, structure=aug, names=names, theta=theta, fitted=True,
-                 amplitudes=amps, members=members, sensor=sensor)
+                 amplitudes=amps, members=members, sensor=sensor, stopped=stopped)
+    if stopped:
+        out.note = (f"joint fit stopped early: train cost {cost:.3g} > "
+                    f"{settings.stop_ratio:g} x the best set's {against:.3g}")
     finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
     out.fit_time_s = time.perf_counter() - t0
     return out
@@ -146,17 +154,19 @@ def joiners(ranking: Sequence[Candidate], verdicts: Sequence[Candidate],
 def grow_sets(options: Sequence[SetFit], joining: Sequence[Candidate], structure: Structure,
               train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
               gap_before: float, before_blocks: np.ndarray, noise: float | None,
-              settings: DiagnoseSettings, progress: Progress | None = None
-              ) -> list[SetFit]:
+              settings: DiagnoseSettings, progress: Progress | None = None,
+              against: float = math.inf) -> list[SetFit]:
     """Sets of three: the ``set_beam`` best pairs by validation gap (each closing at least
     ``step_min``) grown by every candidate in ``joining`` that can join them
     (``grow.can_grow``), each fitted jointly.  None when at most two effects are allowed
     or the best pair already leaves no more than ``kind_check_noise`` x the noise floor
-    (nothing left for a third effect to explain)."""
+    (nothing left for a third effect to explain).  ``against``: the best train cost
+    known, each joint fit's early stop (``set_fit.set_stop``)."""
     if settings.max_effects < 3 or settings.set_beam < 1:
         return []
     twos = sorted((o for o in options if len(o.members) == 2 and np.isfinite(o.gap_after)
-                   and o.closure >= settings.step_min), key=lambda o: o.gap_after)
+                   and o.closure >= settings.step_min and not o.stopped),
+                  key=lambda o: o.gap_after)
     if not twos or (noise is not None
                     and twos[0].gap_after <= settings.kind_check_noise * noise):
         return []
@@ -168,7 +178,11 @@ def grow_sets(options: Sequence[SetFit], joining: Sequence[Candidate], structure
             if key not in seen and can_grow(base, c):
                 seen.add(key)
                 jobs.append((base, c))
-    fits = run_each(lambda bc: grow(bc[0], bc[1], structure, train, val, proc, gap_before,
-                                    before_blocks, settings, progress),
-                    jobs, worker_count(settings))
-    return [f for f in fits if f is not None]
+    def one(bc: tuple[SetFit, Candidate], ref: float) -> SetFit | None:
+        return grow(bc[0], bc[1], structure, train, val, proc, gap_before, before_blocks,
+                    settings, progress, ref)
+
+    fits = run_each(lambda bc: one(bc, against), jobs, worker_count(settings))
+    origin = {id(f): bc for f, bc in zip(fits, jobs) if f is not None}
+    return refit_stopped([f for f in fits if f is not None],
+                         lambda o: one(origin[id(o)], math.inf), settings)

@@ -33,17 +33,21 @@ from .parallel import run_each, worker_count
 from .pulse_reading import explained_by_reading
 from .results import Candidate
 from .scoring import judge
-from .set_fit import SetFit, _refit, finish_set
+from .set_fit import SetFit, _refit, finish_set, refit_stopped, set_stop
 from .settings import DiagnoseSettings
 
 
 def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
              val: Sequence[Recording], proc: Processing, gap_before: float,
              before_blocks: np.ndarray, settings: DiagnoseSettings,
-             progress: Progress | None = None) -> SetFit | None:
+             progress: Progress | None = None, against: float = math.inf
+             ) -> SetFit | None:
     """The joint fit of two fitted single candidates (at most one a sensor fault), judged
-    on the validation records; None when it cannot be built or simulated."""
+    on the validation records; None when it cannot be built or simulated.  ``against``:
+    the best train cost known (``set_fit.set_stop``); a fit stopped against it is marked
+    ``stopped`` (its sensor value is not re-tuned)."""
     t0 = time.perf_counter()
+    stop = set_stop(against, settings, min(a.train_cost, b.train_cost))
     if a.category == "sensor" and b.category == "sensor":
         return None
     if a.category == "sensor":
@@ -58,10 +62,12 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
             if nom_b:
                 starts.append(aug.vector({**vals_a, **{p: v for p, v in nom_b.items()
                                                        if p in vals_a}}))
-            theta, cost, res = _refit(aug, starts, recs, proc, settings.fit_nfev)
+            theta, cost, res = _refit(aug, starts, recs, proc, settings.fit_nfev, stop)
+            stopped = bool(getattr(res, "stopped", False))
             # the fault's value re-fitted with the structural model (joint_sensor's doc:
             # fitted with the nominal model alone it absorbs part of the other effect)
-            again = retune_sensor(b, aug, theta, train, proc, max(10, settings.fit_nfev // 2))
+            again = None if stopped else retune_sensor(b, aug, theta, train, proc,
+                                                       max(10, settings.fit_nfev // 2))
             if again is not None:
                 b, theta, cost, res = again
             out = SetFit(a.effect, a.loc, dict(a.shape), structure=aug, names=names,
@@ -77,16 +83,30 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
             s1 = {**vals_a, **{names[k]: v for k, v in b.coefficients.items()}}
             s2 = {**s1, **{p: vals_b[p] for p in structure.free if p in vals_b}}
             starts = [aug.vector(s1), aug.vector(s2)]
-            theta, cost, res = _refit(aug, starts, train, proc, settings.fit_nfev)
+            theta, cost, res = _refit(aug, starts, train, proc, settings.fit_nfev, stop)
+            stopped = bool(getattr(res, "stopped", False))
             out = SetFit(b.effect, b.loc, dict(b.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=b.amplitudes,
                          members=[a, b])
     except Exception as exc:  # noqa: BLE001 - a pair that cannot be fitted is not a set
         _say(progress, f"pair {a.label()} + {b.label()}: fit failed ({exc})")
         return None
+    out.stopped = stopped
+    if stopped:
+        out.note = (f"joint fit stopped early: train cost {cost:.3g} > "
+                    f"{settings.stop_ratio:g} x the best set's {against:.3g}")
     finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
     out.fit_time_s = time.perf_counter() - t0
     return out
+
+
+def best_known(options: Sequence[Candidate], ranking: Sequence[Candidate]) -> float:
+    """The best train cost of the sets fitted so far and of the structural singles (the
+    reference of ``set_fit.set_stop``)."""
+    costs = [o.train_cost for o in options if not o.stopped and np.isfinite(o.train_cost)]
+    costs += [c.train_cost for c in ranking if c.category == "structure" and c.fitted
+              and not c.stopped and np.isfinite(c.train_cost)]
+    return min(costs, default=math.inf)
 
 
 def member_coefficients(s: Candidate) -> list[dict[str, float]]:
@@ -257,15 +277,22 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             if frozenset((a.key, b.key)) not in done:
                 done.add(frozenset((a.key, b.key)))
                 pairs.append((a, b))
-        # independent joint fits: on the cores (``parallel.run_each``), kept in order
-        fits = run_each(lambda ab: fit_pair(ab[0], ab[1], structure, train, val, proc,
-                                            gap_before, before_blocks, settings, progress),
-                        pairs, worker_count(settings))
-        options += [p for p in fits if p is not None]
+        # independent joint fits: on the cores (``parallel.run_each``), kept in order;
+        # each stopped early against the best set or single known before them
+        against = best_known(options, ranking)
+
+        def pair(ab: tuple[Candidate, Candidate], ref: float) -> SetFit | None:
+            return fit_pair(ab[0], ab[1], structure, train, val, proc, gap_before,
+                            before_blocks, settings, progress, ref)
+
+        fits = run_each(lambda ab: pair(ab, against), pairs, worker_count(settings))
+        origin = {id(f): ab for f, ab in zip(fits, pairs) if f is not None}
+        fitted = [p for p in fits if p is not None]
+        options += refit_stopped(fitted, lambda o: pair(origin[id(o)], math.inf), settings)
         # three effects: the best pairs grown by one more member (``grow``)
         options += grow_sets(options, [*members, *mates, *faults],
                              structure, train, val, proc, gap_before, before_blocks, noise,
-                             settings, progress)
+                             settings, progress, best_known(options, ranking))
     single_gap = {c.key: c.gap_after for c in ranking if np.isfinite(c.gap_after)}
     # the validation gap of every set fitted, by its members: a set of three without one
     # member is the pair of the other two when that pair was fitted

@@ -164,6 +164,9 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     chosen += sensor_fits(sens, fit.train_cost, settings)
     t0 = time.perf_counter()
     first = dataclasses.replace(settings, fit_nfev=min(settings.first_nfev, settings.fit_nfev))
+    # a later stage starts from an earlier effect's model: its fits are also stopped when
+    # they remove too little of its train cost (``early_stop.gain_limit``)
+    base = fit.train_cost if tag else math.nan
 
     def leader_cost() -> float:  # the best fit so far: a later one far above it stops
         return min((c.train_cost for c in chosen if c.fitted and not c.stopped
@@ -183,7 +186,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                 c.amplitudes = nom.amplitudes[c.loc.between]
                 fit_candidate(c, structure, theta, train, proc, c.amplitudes, first,
                               nom.force_scale, fit.train_cost,
-                              lc if stop else math.inf, ld if stop else None)
+                              lc if stop else math.inf, ld if stop else None, base)
             return True
         except Exception as exc:  # noqa: BLE001 - one failed candidate must not sink the run
             c.note = f"fit failed: {exc}"
@@ -194,7 +197,7 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         lc = leader_cost() if lc is None else lc
         try:
             continue_fit(c, train, proc, settings.fit_nfev - first.fit_nfev,
-                         cannot_win(lc, settings) if stop else None)
+                         cannot_win(lc, settings, base_cost=base) if stop else None)
         except Exception as exc:  # noqa: BLE001 - the first fit stands
             _say(progress, f"{c.label()}: second round failed ({exc})")
 
