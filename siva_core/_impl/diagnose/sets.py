@@ -25,7 +25,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .grow import grow_sets, joiners, partners
+from .grow import grow_sets, joiners, partners, refit_from_lead, second_leads
 from .joint_sensor import retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
@@ -40,9 +40,12 @@ from .settings import DiagnoseSettings
 def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
              val: Sequence[Recording], proc: Processing, gap_before: float,
              before_blocks: np.ndarray, settings: DiagnoseSettings,
-             progress: Progress | None = None) -> SetFit | None:
+             progress: Progress | None = None, starts_a: Sequence[np.ndarray] = ()
+             ) -> SetFit | None:
     """The joint fit of two fitted single candidates (at most one a sensor fault), judged
-    on the validation records; None when it cannot be built or simulated."""
+    on the validation records; None when it cannot be built or simulated.  ``starts_a``:
+    more starts of ``a``'s model (a look-alike second lead's law-swap starts,
+    ``grow.refit_from_lead``), each with ``b``'s coefficients."""
     t0 = time.perf_counter()
     if a.category == "sensor" and b.category == "sensor":
         return None
@@ -77,6 +80,8 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
             s1 = {**vals_a, **{names[k]: v for k, v in b.coefficients.items()}}
             s2 = {**s1, **{p: vals_b[p] for p in structure.free if p in vals_b}}
             starts = [aug.vector(s1), aug.vector(s2)]
+            for t in starts_a:
+                starts.append(aug.vector({**s1, **a.structure.as_dict(t)}))
             theta, cost, res = _refit(aug, starts, train, proc, settings.fit_nfev)
             out = SetFit(b.effect, b.loc, dict(b.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=b.amplitudes,
@@ -234,6 +239,22 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     if settings.pairs and not explained and (noise is None
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
+        # look-alike laws at the lead's place, fitted again from the lead's force in their
+        # law: second leads of the pairs (``grow.second_leads``)
+        lead0 = partners(ranking, members, settings)[0]
+        seconds = [] if any(o.closure >= settings.kind_check and noise is not None
+                            and o.gap_after <= settings.kind_check_noise * noise
+                            for o in options) else second_leads(ranking, lead0, settings)
+        swap_starts: dict[tuple[str, tuple[str, str]], list[np.ndarray]] = {}
+        if seconds:
+            for c in seconds:
+                swap_starts[c.key] = refit_from_lead(c, lead0, structure, train, val, proc,
+                                                     gap_before, before_blocks, settings,
+                                                     progress)
+            seconds = sorted(seconds, key=lambda c: c.train_cost)[:settings.lookalike_leads]
+            ranking = sorted(ranking, key=lambda c: (
+                c.reading, -c.closure if np.isfinite(c.closure) else math.inf))
+            members = pair_members(ranking, settings, settings.pair_members)
         # a greedy set that explains the gap to the noise (as ``explained`` for a single)
         # is not searched around: only the pairs of the members, as before issue 16's
         # fifth round (CPU: a LO-NO pair fit takes 10-30 s)
@@ -251,6 +272,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             lead, mates = None, []
         if lead is not None:
             extra += [(lead, c) for c in [*mates, *faults]]
+            # the look-alike second leads with the lead's partners at other places
+            others = [c for c in [*members, *mates] if c.category == "structure"
+                      and c.loc.between != lead.loc.between]
+            swaps = [(x, c) for x in seconds if x.key != lead.key for c in others]
+            extra += swaps[:settings.lookalike_pairs]
             mates = [lead, *mates]
         pairs = []
         for a, b in [*combinations(members, 2), *extra]:
@@ -259,7 +285,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                 pairs.append((a, b))
         # independent joint fits: on the cores (``parallel.run_each``), kept in order
         fits = run_each(lambda ab: fit_pair(ab[0], ab[1], structure, train, val, proc,
-                                            gap_before, before_blocks, settings, progress),
+                                            gap_before, before_blocks, settings, progress,
+                                            swap_starts.get(ab[0].key, ())),
                         pairs, worker_count(settings))
         options += [p for p in fits if p is not None]
         # three effects: the best pairs grown by one more member (``grow``)
