@@ -127,9 +127,9 @@ def partners(ranking: Sequence[Candidate], members: Sequence[Candidate],
 def second_leads(ranking: Sequence[Candidate], lead: Candidate | None,
                  settings: DiagnoseSettings) -> list[Candidate]:
     """Look-alike laws fitted at the lead's place (``verdict.look_alike``), best train
-    cost first: each is fitted again from the lead's force (``refit_from_lead``) and the
-    ``settings.lookalike_leads`` best of them by train cost are paired with the lead's
-    partners too (``sets.choose_set``).  A wrong-law lead blocks the right pair otherwise
+    cost first: the first ``settings.lookalike_leads`` are fitted again from the lead's
+    force (``refit_from_lead``) and paired with the lead's best mates
+    (``sets.choose_set``).  A wrong-law lead blocks the right pair otherwise
     (issue 16, chain3:two:0: a linear damper m3-ground led where a quadratic one was
     true; the quadratic damper m3-ground was never paired)."""
     from .verdict import look_alike

@@ -80,9 +80,19 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
             s1 = {**vals_a, **{names[k]: v for k, v in b.coefficients.items()}}
             s2 = {**s1, **{p: vals_b[p] for p in structure.free if p in vals_b}}
             starts = [aug.vector(s1), aug.vector(s2)]
-            for t in starts_a:
-                starts.append(aug.vector({**s1, **a.structure.as_dict(t)}))
             theta, cost, res = _refit(aug, starts, train, proc, settings.fit_nfev)
+            if starts_a:  # a look-alike second lead: from the lead's force in its law too
+                mag = a.names[a.effect.magnitude]
+                swap = []
+                for t in starts_a:
+                    va = a.structure.as_dict(t)
+                    swap.append(aug.vector({**s1, **va}))
+                    # the lead absorbed part of the other effect too: smaller magnitudes
+                    # on the other member's nominal parameters
+                    swap += [aug.vector({**s2, mag: va[mag] * f}) for f in (1.0, 0.3, 0.1)]
+                th2, cost2, res2 = _refit(aug, swap, train, proc, settings.fit_nfev)
+                if cost2 < cost:
+                    theta, cost, res = th2, cost2, res2
             out = SetFit(b.effect, b.loc, dict(b.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=b.amplitudes,
                          members=[a, b])
@@ -247,11 +257,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                             for o in options) else second_leads(ranking, lead0, settings)
         swap_starts: dict[tuple[str, tuple[str, str]], list[np.ndarray]] = {}
         if seconds:
+            seconds = seconds[:settings.lookalike_leads]
             for c in seconds:
                 swap_starts[c.key] = refit_from_lead(c, lead0, structure, train, val, proc,
                                                      gap_before, before_blocks, settings,
                                                      progress)
-            seconds = sorted(seconds, key=lambda c: c.train_cost)[:settings.lookalike_leads]
             ranking = sorted(ranking, key=lambda c: (
                 c.reading, -c.closure if np.isfinite(c.closure) else math.inf))
             members = pair_members(ranking, settings, settings.pair_members)
@@ -272,11 +282,6 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             lead, mates = None, []
         if lead is not None:
             extra += [(lead, c) for c in [*mates, *faults]]
-            # the look-alike second leads with the lead's partners at other places
-            others = [c for c in [*members, *mates] if c.category == "structure"
-                      and c.loc.between != lead.loc.between]
-            swaps = [(x, c) for x in seconds if x.key != lead.key for c in others]
-            extra += swaps[:settings.lookalike_pairs]
             mates = [lead, *mates]
         pairs = []
         for a, b in [*combinations(members, 2), *extra]:
@@ -288,6 +293,27 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                                             gap_before, before_blocks, settings, progress,
                                             swap_starts.get(ab[0].key, ())),
                         pairs, worker_count(settings))
+        options += [p for p in fits if p is not None]
+        # the look-alike second leads, each with the lead's best mates: the structural
+        # members at another place of the lead's best pairs by validation gap
+        swaps = []
+        if lead is not None and seconds:
+            best = sorted((o for o in options if len(o.members) == 2 and o.sensor is None
+                           and np.isfinite(o.gap_after)
+                           and any(m.key == lead.key for m in o.members)),
+                          key=lambda o: o.gap_after)
+            with_lead = [m for o in best for m in o.members
+                         if m.key != lead.key and m.loc.between != lead.loc.between]
+            with_lead = [m for k, m in enumerate(with_lead)
+                         if all(m.key != o.key for o in with_lead[:k])]
+            swaps = [(x, m) for m in with_lead[:settings.lookalike_mates] for x in seconds
+                     if x.key != lead.key and frozenset((x.key, m.key)) not in done]
+            swaps = swaps[:settings.lookalike_pairs]
+            done.update(frozenset((x.key, m.key)) for x, m in swaps)
+        fits = run_each(lambda ab: fit_pair(ab[0], ab[1], structure, train, val, proc,
+                                            gap_before, before_blocks, settings, progress,
+                                            swap_starts.get(ab[0].key, ())),
+                        swaps, worker_count(settings))
         options += [p for p in fits if p is not None]
         # three effects: the best pairs grown by one more member (``grow``)
         options += grow_sets(options, [*members, *mates, *faults],

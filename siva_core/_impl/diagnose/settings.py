@@ -113,11 +113,13 @@ class DiagnoseSettings:
     role_places: when the leading fit leaves part of the gap, the best fit of the *other*
         role (by train cost) is also fitted at this many other places, strongest screened
         first (``stage``): its place is decided by fits, as the lead's is.  0 = off.
-    lookalike_leads: the pair search also pairs this many look-alike laws fitted at the
-        lead's place (``grow.second_leads``) with the lead's partners, each started from
-        the lead's force matched by the look-alike law (``sets.law_swap``): a wrong-law
-        lead (a linear damper where a quadratic one is true) does not block the right
-        pair.  0 = off.
+    lookalike_leads: the pair search also pairs up to this many look-alike laws fitted
+        at the lead's place (``grow.second_leads``, best train cost first) with the lead's
+        ``lookalike_mates`` best mates (the other members of its best pairs by validation
+        gap), each started from the lead's force matched by the look-alike law
+        (``grow.law_swap``): a wrong-law lead (a linear damper where a quadratic one is
+        true) does not block the right pair.  0 = off.
+    lookalike_mates: ... that many mates.
     lookalike_pairs: at most this many such extra pair fits (CPU: a LO-NO pair fit takes
         10-30 s).
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
@@ -168,5 +170,6 @@ class DiagnoseSettings:
     fit_wave: int = 4
     role_keep: int = 1
     role_places: int = 2
-    lookalike_leads: int = 2
-    lookalike_pairs: int = 4
+    lookalike_leads: int = 3
+    lookalike_mates: int = 2
+    lookalike_pairs: int = 6
