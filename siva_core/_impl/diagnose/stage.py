@@ -300,11 +300,13 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             for c in other_kinds(cands, lead, chosen):
                 fit_extra([c], lead)
     # the other role's best fit, at its other places too, when the leader leaves part of
-    # the gap: a second effect of the other role (a damper beside a spring) has its place
-    # decided by fits as the leader's is (issue 16: a cubic damper fitted at LO-ground
-    # only, where LO-NO was true; the leader, a cubic spring, closed 0.24)
+    # a gap above the noise (``noise_factor``, as the pair search): a second effect of
+    # the other role (a damper beside a spring) has its place decided by fits as the
+    # leader's is (issue 16: a cubic damper fitted at LO-ground only, where LO-NO was
+    # true; the leader, a cubic spring, closed 0.24)
     lead = _lead(chosen)
-    if settings.role_places > 0 and lead is not None and unsure(lead):
+    if settings.role_places > 0 and lead is not None and unsure(lead) and (
+            noise is None or gap_before > settings.noise_factor * noise):
         role = lead.effect.kind in DISSIPATIVE
         other = min((c for c in chosen if c.fitted and not c.stopped
                      and c.category == "structure" and np.isfinite(c.train_cost)
