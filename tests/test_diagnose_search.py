@@ -37,7 +37,9 @@ def test_each_role_gets_its_best_candidate_fitted():
     assert restoring[0] in chosen and restoring[1] in chosen
     # off: the restoring laws alone, as before
     assert damper not in select_for_fit(cands, DiagnoseSettings(role_keep=0))
-    # a role with no screening evidence at all is not fitted
+    # a role far below the leader (1 %) is not fitted; with no evidence at all neither
+    assert all(c.effect.kind != "cubic_damper" for c in select_for_fit(
+        [*restoring, _screened("cubic_damper", G, 0.004)], DiagnoseSettings()))
     assert all(c.effect.kind != "cubic_damper"
                for c in select_for_fit(restoring, DiagnoseSettings()))
 

@@ -109,7 +109,9 @@ class DiagnoseSettings:
     role_keep: the first fitted shortlist always holds the best candidate of each role
         (restoring, dissipative) that has any screening evidence, whatever the other
         role's lead (``screening.select_for_fit``): a damper hidden under restoring laws
-        that rank first still gets a fit (issue 16, seventh round).
+        that rank first still gets a fit (issue 16, seventh round) ...
+    role_floor: ... when its screening evidence is at least this share of the leading
+        family's (a role far below it, e.g. a spring at 1 % of a damper, is no rival).
     role_places: when the leading fit leaves part of the gap, the best fit of the *other*
         role (by train cost) is also fitted at this many other places, strongest screened
         first (``stage``): its place is decided by fits, as the lead's is.  0 = off.
@@ -169,6 +171,7 @@ class DiagnoseSettings:
     workers: int = 0
     fit_wave: int = 4
     role_keep: int = 1
+    role_floor: float = 0.03
     role_places: int = 2
     lookalike_leads: int = 3
     lookalike_mates: int = 2
