@@ -131,6 +131,140 @@ def partners(ranking: Sequence[Candidate], members: Sequence[Candidate],
     return lead, out
 
 
+def second_leads(ranking: Sequence[Candidate], lead: Candidate | None,
+                 settings: DiagnoseSettings) -> list[Candidate]:
+    """Look-alike laws fitted at the lead's place (``verdict.look_alike``), best train
+    cost first: the first ``settings.lookalike_leads`` are fitted again from the lead's
+    force (``refit_from_lead``) and paired with the lead's best mates
+    (``sets.choose_set``).  A wrong-law lead blocks the right pair otherwise
+    (issue 16, chain3:two:0: a linear damper m3-ground led where a quadratic one was
+    true; the quadratic damper m3-ground was never paired)."""
+    from .verdict import look_alike
+
+    if lead is None or lead.category != "structure" or settings.lookalike_leads < 1:
+        return []
+    out = sorted((c for c in ranking if c.category == "structure" and c.fitted
+                  and c.key != lead.key and c.loc.between == lead.loc.between
+                  and look_alike(lead.effect.kind, c.effect.kind)
+                  and c.structure is not None and c.theta is not None),
+                 key=lambda c: c.train_cost if np.isfinite(c.train_cost) else math.inf)
+    return out
+
+
+def law_swap(c: Candidate, lead: Candidate, train: Sequence[Recording],
+             proc: Processing) -> list[np.ndarray]:
+    """Starts for ``c`` (a look-alike law at the lead's place) in its own model: the lead's
+    nominal parameters and the magnitude whose force matches the lead's along the lead's
+    simulated train runs at that place (least squares), and the magnitudes whose force
+    equals the lead's at the place's RMS and at its largest amplitude.  A look-alike's own
+    single fit can stall near zero (measured: a quadratic damper m3-ground beside a linear
+    one, c2 = 1.2e-5, at the nominal's train cost) where the lead's force, expressed in
+    its law, is a start near the truth."""
+    from .outputs import _Outputs, _relative
+
+    if (c.structure is None or c.theta is None or not c.names or lead.structure is None
+            or lead.theta is None):
+        return []
+    mag_lead = lead.coefficients.get(lead.effect.magnitude)
+    if mag_lead is None or not np.isfinite(mag_lead) or mag_lead == 0:
+        return []
+    shape_lead = {k: v for k, v in lead.coefficients.items() if k != lead.effect.magnitude}
+    shape_c = {k: v for k, v in c.coefficients.items() if k != c.effect.magnitude}
+    mags = []
+    try:  # the lead's own motion at its place, on the train records
+        outs = _Outputs(lead.structure, list(train), proc, lead.theta)
+        ds, vs = [], []
+        for k in range(len(outs.records)):
+            _, sim = outs.signals(lead.theta, k)
+            d, v = _relative(np.asarray(sim.q), np.asarray(sim.v), lead.loc)
+            ds.append(np.ravel(d))
+            vs.append(np.ravel(v))
+        d, v = np.concatenate(ds), np.concatenate(vs)
+        f_lead = mag_lead * np.asarray(lead.effect.unit_force(d, v, shape_lead), float)
+        u = np.asarray(c.effect.unit_force(d, v, shape_c), float)
+        uu = float(u @ u)
+        if np.all(np.isfinite(f_lead)) and np.all(np.isfinite(u)) and uu > 0:
+            mags.append(float(f_lead @ u) / uu)
+        pts = [(float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(v ** 2)))),
+               (float(np.max(np.abs(d))), float(np.max(np.abs(v))))]
+    except Exception:  # noqa: BLE001 - the amplitudes alone
+        amp = c.amplitudes or lead.amplitudes
+        pts = [] if amp is None else [(amp.d_rms, amp.v_rms), (amp.d_max, amp.v_max)]
+    for dd, vv in pts:
+        try:
+            fl = float(np.abs(lead.effect.unit_force(np.array(dd), np.array(vv), shape_lead)))
+            fc = float(np.abs(c.effect.unit_force(np.array(dd), np.array(vv), shape_c)))
+        except (KeyError, ValueError, TypeError):
+            continue
+        if fl > 0 and fc > 0 and np.isfinite(fl) and np.isfinite(fc):
+            mags.append(abs(mag_lead) * fl / fc * (-1.0 if mag_lead < 0 else 1.0))
+    base = {**c.structure.as_dict(c.theta), **dict(lead.parameters or {})}
+    out = []
+    for mag in mags:
+        if c.effect.magnitude in c.effect.positive:
+            mag = abs(mag)
+        if not np.isfinite(mag) or mag == 0:
+            continue
+        try:
+            out.append(c.structure.vector({**base, c.names[c.effect.magnitude]: mag}))
+        except (KeyError, ValueError):
+            continue
+    return out
+
+
+def refit_from_lead(c: Candidate, lead: Candidate, structure: Structure,
+                    train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
+                    gap_before: float, before_blocks: np.ndarray,
+                    settings: DiagnoseSettings, progress: Progress | None = None
+                    ) -> list[np.ndarray]:
+    """Fit the look-alike ``c`` alone again from its own fit and the lead's force in its
+    law (``law_swap``); kept (and judged again) when the train cost drops.  Returns the
+    law-swap starts (in ``c``'s model) for the pairs it leads.
+
+    ``c``'s model is rebuilt with its magnitude's scale at the lead's force (a single fit
+    that stalled near zero set it from a vanishing estimate: measured, a joint fit then
+    cannot move the magnitude).  Alone, a look-alike can still fit no better than the
+    nominal model on the train records (the other effect of the pair is what the lead
+    was absorbing): the starts, not its single fit, are what its pairs need."""
+    from .scoring import judge
+
+    if c.structure is None or c.theta is None or not c.names:
+        return []
+    starts = law_swap(c, lead, train, proc)
+    if not starts:
+        return []
+    mag_p = c.names[c.effect.magnitude]
+    mags = [float(c.structure.as_dict(t)[mag_p]) for t in starts]
+    try:  # same parameter names and order: the nominal model plus the same element
+        scales = {**{k: max(abs(v), 1e-12) for k, v in c.coefficients.items()},
+                  c.effect.magnitude: max(abs(mags[0]), 1e-300)}
+        aug, names = augmented(structure, c.effect, c.loc, scales)
+        if names == c.names and aug.free == c.structure.free:
+            c.structure = aug
+    except Exception:  # noqa: BLE001 - the old scale stands
+        pass
+    try:
+        theta, cost, _ = _refit(c.structure, [np.asarray(c.theta, float), *starts], train,
+                                proc, settings.fit_nfev)
+    except Exception as exc:  # noqa: BLE001 - its single fit stands
+        _say(progress, f"{c.label()}: refit from the lead's force failed ({exc})")
+        return starts
+    at = ", ".join(f"{m:.4g}" for m in mags)
+    if not (np.isfinite(cost) and cost < c.train_cost):
+        _say(progress, f"{c.label()}: refit from {lead.label()}'s force (starts {at}): "
+                       f"train {cost:.4g}, not below its fit's {c.train_cost:.4g}")
+        return starts
+    _say(progress, f"{c.label()}: refit from {lead.label()}'s force (starts {at})")
+    c.theta, c.train_cost, c.stopped = np.asarray(theta, float), float(cost), False
+    vals = c.structure.as_dict(c.theta)
+    c.coefficients = {k: vals[p] for k, p in c.names.items()}
+    c.parameters = {p: v for p, v in vals.items() if p not in c.names.values()}
+    c.intervals = {}
+    c.note = ((c.note + "; ") if c.note else "") + f"refitted from {lead.label()}'s force"
+    judge(c, val, proc, gap_before, before_blocks, progress)
+    return starts
+
+
 def joiners(ranking: Sequence[Candidate], verdicts: Sequence[Candidate],
             scanned: Sequence[Candidate] = ()) -> list[Candidate]:
     """Sensor faults that may join a structural effect (as its pair's second member or a

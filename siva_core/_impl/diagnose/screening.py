@@ -289,6 +289,16 @@ def select_for_fit(cands: Sequence[Candidate], settings: DiagnoseSettings
     strong = max(cands, key=lambda c: c.ee_score, default=None)
     if strong is not None and strong.ee_score >= settings.ee_strong and strong not in chosen:
         chosen.append(strong)
+    # each role (restoring, dissipative) gets its best candidates whatever the other
+    # role's lead: a dissipative effect hidden under restoring laws that rank first (or
+    # the reverse) is still fitted (issue 16: a cubic damper LO-NO beside a spring
+    # NO-ground, the screen's first six all restoring but one); not a role far below
+    # (``role_floor`` of the leading family's evidence)
+    for role in (False, True):
+        have = sum(1 for c in chosen if (c.effect.kind in DISSIPATIVE) == role)
+        extra = [c for c in ranked if (c.effect.kind in DISSIPATIVE) == role
+                 and c not in chosen and strength(c) >= settings.role_floor * top]
+        chosen += extra[:max(0, settings.role_keep - have)]
     return chosen
 
 

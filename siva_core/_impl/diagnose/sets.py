@@ -25,7 +25,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .grow import grow_sets, joiners, partners
+from .grow import grow_sets, joiners, partners, refit_from_lead, second_leads
 from .joint_sensor import retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _Outputs, _say
@@ -40,12 +40,14 @@ from .settings import DiagnoseSettings
 def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
              val: Sequence[Recording], proc: Processing, gap_before: float,
              before_blocks: np.ndarray, settings: DiagnoseSettings,
-             progress: Progress | None = None, against: float = math.inf
-             ) -> SetFit | None:
+             progress: Progress | None = None, against: float = math.inf,
+             starts_a: Sequence[np.ndarray] = ()) -> SetFit | None:
     """The joint fit of two fitted single candidates (at most one a sensor fault), judged
     on the validation records; None when it cannot be built or simulated.  ``against``:
     the best train cost known (``set_fit.set_stop``); a fit stopped against it is marked
-    ``stopped`` (its sensor value is not re-tuned)."""
+    ``stopped`` (its sensor value is not re-tuned).  ``starts_a``: more starts of ``a``'s
+    model (a look-alike second lead's law-swap starts, ``grow.refit_from_lead``), each
+    with ``b``'s coefficients."""
     t0 = time.perf_counter()
     stop = set_stop(against, settings, min(a.train_cost, b.train_cost))
     if a.category == "sensor" and b.category == "sensor":
@@ -84,6 +86,18 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
             s2 = {**s1, **{p: vals_b[p] for p in structure.free if p in vals_b}}
             starts = [aug.vector(s1), aug.vector(s2)]
             theta, cost, res = _refit(aug, starts, train, proc, settings.fit_nfev, stop)
+            if starts_a:  # a look-alike second lead: from the lead's force in its law too
+                mag = a.names[a.effect.magnitude]
+                swap = []
+                for t in starts_a:
+                    va = a.structure.as_dict(t)
+                    swap.append(aug.vector({**s1, **va}))
+                    # the lead absorbed part of the other effect too: smaller magnitudes
+                    # on the other member's nominal parameters
+                    swap += [aug.vector({**s2, mag: va[mag] * f}) for f in (1.0, 0.3, 0.1)]
+                th2, cost2, res2 = _refit(aug, swap, train, proc, settings.fit_nfev, stop)
+                if cost2 < cost:
+                    theta, cost, res = th2, cost2, res2
             stopped = bool(getattr(res, "stopped", False))
             out = SetFit(b.effect, b.loc, dict(b.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=b.amplitudes,
@@ -254,6 +268,22 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     if settings.pairs and not explained and (noise is None
                                              or gap_before > settings.noise_factor * noise):
         members = pair_members(ranking, settings, settings.pair_members)
+        # look-alike laws at the lead's place, fitted again from the lead's force in their
+        # law: second leads of the pairs (``grow.second_leads``)
+        lead0 = partners(ranking, members, settings)[0]
+        seconds = [] if any(o.closure >= settings.kind_check and noise is not None
+                            and o.gap_after <= settings.kind_check_noise * noise
+                            for o in options) else second_leads(ranking, lead0, settings)
+        swap_starts: dict[tuple[str, tuple[str, str]], list[np.ndarray]] = {}
+        if seconds:
+            seconds = seconds[:settings.lookalike_leads]
+            for c in seconds:
+                swap_starts[c.key] = refit_from_lead(c, lead0, structure, train, val, proc,
+                                                     gap_before, before_blocks, settings,
+                                                     progress)
+            ranking = sorted(ranking, key=lambda c: (
+                c.reading, -c.closure if np.isfinite(c.closure) else math.inf))
+            members = pair_members(ranking, settings, settings.pair_members)
         # a greedy set that explains the gap to the noise (as ``explained`` for a single)
         # is not searched around: only the pairs of the members, as before issue 16's
         # fifth round (CPU: a LO-NO pair fit takes 10-30 s)
@@ -283,12 +313,36 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
 
         def pair(ab: tuple[Candidate, Candidate], ref: float) -> SetFit | None:
             return fit_pair(ab[0], ab[1], structure, train, val, proc, gap_before,
-                            before_blocks, settings, progress, ref)
+                            before_blocks, settings, progress, ref,
+                            swap_starts.get(ab[0].key, ()))
 
-        fits = run_each(lambda ab: pair(ab, against), pairs, worker_count(settings))
-        origin = {id(f): ab for f, ab in zip(fits, pairs) if f is not None}
-        fitted = [p for p in fits if p is not None]
-        options += refit_stopped(fitted, lambda o: pair(origin[id(o)], math.inf), settings)
+        def fit_all(abs_: list[tuple[Candidate, Candidate]]) -> list[SetFit]:
+            fits = run_each(lambda ab: pair(ab, against), abs_, worker_count(settings))
+            origin = {id(f): ab for f, ab in zip(fits, abs_) if f is not None}
+            fitted = [p for p in fits if p is not None]
+            return fitted + refit_stopped(fitted, lambda o: pair(origin[id(o)], math.inf),
+                                          settings)
+
+        options += fit_all(pairs)
+        # the look-alike second leads, each with the lead's best mates: the structural
+        # members at another place of the lead's best pairs by validation gap
+        swaps = []
+        if lead is not None and seconds:
+            best = sorted((o for o in options if len(o.members) == 2 and o.sensor is None
+                           and np.isfinite(o.gap_after)
+                           and any(m.key == lead.key for m in o.members)),
+                          key=lambda o: o.gap_after)
+            with_lead = [m for o in best for m in o.members
+                         if m.key != lead.key and m.loc.between != lead.loc.between]
+            with_lead = [m for k, m in enumerate(with_lead)
+                         if all(m.key != o.key for o in with_lead[:k])]
+            swaps = [(x, m) for m in with_lead[:settings.lookalike_mates] for x in seconds
+                     if x.key != lead.key and frozenset((x.key, m.key)) not in done]
+            swaps = swaps[:settings.lookalike_pairs]
+            done.update(frozenset((x.key, m.key)) for x, m in swaps)
+        if swaps:
+            against = best_known(options, ranking)
+            options += fit_all(swaps)
         # three effects: the best pairs grown by one more member (``grow``)
         options += grow_sets(options, [*members, *mates, *faults],
                              structure, train, val, proc, gap_before, before_blocks, noise,

@@ -106,6 +106,24 @@ class DiagnoseSettings:
     workers: threads for the independent scans, fits and judgements of a step
         (``parallel.run_each``); 0 = ``$SIVA_DIAGNOSE_WORKERS`` or every core.  The result
         does not depend on it.
+    role_keep: the first fitted shortlist always holds the best candidate of each role
+        (restoring, dissipative) that has any screening evidence, whatever the other
+        role's lead (``screening.select_for_fit``): a damper hidden under restoring laws
+        that rank first still gets a fit (issue 16, seventh round) ...
+    role_floor: ... when its screening evidence is at least this share of the leading
+        family's (a role far below it, e.g. a spring at 1 % of a damper, is no rival).
+    role_places: when the leading fit leaves part of the gap, the best fit of the *other*
+        role (by train cost) is also fitted at this many other places, strongest screened
+        first (``stage``): its place is decided by fits, as the lead's is.  0 = off.
+    lookalike_leads: the pair search also pairs up to this many look-alike laws fitted
+        at the lead's place (``grow.second_leads``, best train cost first) with the lead's
+        ``lookalike_mates`` best mates (the other members of its best pairs by validation
+        gap), each started from the lead's force matched by the look-alike law
+        (``grow.law_swap``): a wrong-law lead (a linear damper where a quadratic one is
+        true) does not block the right pair.  0 = off.
+    lookalike_mates: ... that many mates.
+    lookalike_pairs: at most this many such extra pair fits (CPU: a LO-NO pair fit takes
+        10-30 s).
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
@@ -152,3 +170,9 @@ class DiagnoseSettings:
     nominal_start: Mapping[str, float] | None = None
     workers: int = 0
     fit_wave: int = 4
+    role_keep: int = 1
+    role_floor: float = 0.03
+    role_places: int = 2
+    lookalike_leads: int = 3
+    lookalike_mates: int = 2
+    lookalike_pairs: int = 6

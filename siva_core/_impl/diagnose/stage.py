@@ -16,7 +16,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .early_stop import cannot_win
 from .fitting import continue_fit, fit_candidate, scan_candidate
-from .nominal import NominalFit
+from .nominal import DISSIPATIVE, NominalFit
 from .outputs import Progress, _say
 from .parallel import run_each, waves, worker_count
 from .results import Candidate
@@ -302,6 +302,26 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):
                 fit_extra([c], lead)
+    # the other role's best fit, at its other places too, when the leader leaves part of
+    # a gap above the noise (``noise_factor``, as the pair search): a second effect of
+    # the other role (a damper beside a spring) has its place decided by fits as the
+    # leader's is (issue 16: a cubic damper fitted at LO-ground only, where LO-NO was
+    # true; the leader, a cubic spring, closed 0.24)
+    lead = _lead(chosen)
+    if settings.role_places > 0 and lead is not None and unsure(lead) and (
+            noise is None or gap_before > settings.noise_factor * noise):
+        role = lead.effect.kind in DISSIPATIVE
+        other = min((c for c in chosen if c.fitted and not c.stopped
+                     and c.category == "structure" and np.isfinite(c.train_cost)
+                     and (c.effect.kind in DISSIPATIVE) != role),
+                    key=lambda c: c.train_cost, default=None)
+        if other is not None:
+            more = other_places(cands, other.effect.kind, chosen)[:settings.role_places]
+            if more:
+                at = ", ".join("-".join(c.loc.between) for c in more)
+                _say(progress, f"{other.label()}: the best fit of the other role, also "
+                               f"fitted at {at}")
+                fit_extra(more, lead)
     timing[f"{tag}candidate_fits"] = time.perf_counter() - t0
     fitted = [c for c in chosen if c.fitted]
     for c in fitted:  # a force gain the few-sample pulse's reading explains: not a fault
