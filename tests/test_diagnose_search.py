@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from siva_core import EFFECTS, Processing, Structure
-from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
-                                      synthetic_impacts, with_effect)
+from siva_core import EFFECTS, Structure
+from siva_core._impl.diagnose import Candidate, DiagnoseSettings, Location, augmented
 from siva_core._impl.diagnose.grow import law_swap, refit_from_lead, second_leads
-from siva_core._impl.diagnose.scoring import judge, validation_gap
+from siva_core._impl.diagnose.scoring import judge
 from siva_core._impl.diagnose.screening import select_for_fit
 from siva_core._impl.diagnose.set_fit import _refit
 from siva_core._impl.diagnose.sets import fit_pair
+from test_diagnose_sets import NOMINAL, two_dof_records
 
 G = Location(0, -1, ("x", "ground"))
 XY = Location(0, 1, ("x", "y"))
@@ -44,12 +44,6 @@ def test_each_role_gets_its_best_candidate_fitted():
                for c in select_for_fit(restoring, DiagnoseSettings()))
 
 
-TWO = {"name": "two", "dofs": ["x", "y"], "mass": {"x": 1.0, "y": 0.5},
-       "elements": [{"kind": "spring", "between": ["x", "ground"], "params": {"k": "k1"}},
-                    {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c1"}},
-                    {"kind": "spring", "between": ["x", "y"], "params": {"k": "k2"}},
-                    {"kind": "damper", "between": ["x", "y"], "params": {"c": "c2"}}]}
-NOMINAL = {"k1": 6000.0, "c1": 1.0, "k2": 3000.0, "c2": 0.5}
 C2, K3 = 40.0, 2.0e7  # quadratic damper x-ground, cubic spring x-y
 
 
@@ -74,17 +68,8 @@ def _fitted(st: Structure, kind: str, loc: Location, value: float, train, val, p
 
 @pytest.fixture(scope="module")
 def lookalike_case():
-    st = Structure.from_dict(TWO)
-    gen = with_effect(with_effect(st, "quadratic_damper", ("x", "ground"), {"c2": C2}),
-                      "cubic_spring", ("x", "y"), {"k3": K3})
-    theta = gen.vector(NOMINAL)
-    train = synthetic_impacts(gen, theta, [60.0, 150.0], dof="y", fs=1024.0, duration=1.5,
-                              seed=5)
-    val = synthetic_impacts(gen, theta, [30.0, 200.0], dof="y", fs=1024.0, duration=1.5,
-                            seed=6)
-    proc = Processing.none()
-    gap, blocks = validation_gap(st, st.vector(NOMINAL), val, proc)
-    return st, train, val, proc, gap, blocks
+    return two_dof_records([("quadratic_damper", ("x", "ground"), {"c2": C2}),
+                            ("cubic_spring", ("x", "y"), {"k3": K3})], 1.5, (5, 6))
 
 
 def test_a_look_alike_of_the_lead_refitted_from_its_force_leads_the_right_pair(

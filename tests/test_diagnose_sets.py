@@ -42,18 +42,28 @@ def _single(st: Structure, kind: str, loc: Location, value: float, train, val, p
     return c
 
 
-@pytest.fixture(scope="module")
-def pair_case():
+def two_dof_records(effects, duration: float, seeds: tuple[int, int]):
+    """The 2-DOF model, train (60 + 150 N) and validation (30 + 200 N) hits on y of it
+    with ``effects`` [(kind, between, coefficients)], no processing, and the nominal
+    validation gap with its blocks."""
     st = Structure.from_dict(TWO)
-    gen = with_effect(with_effect(st, "cubic_spring", ("x", "ground"), {"k3": K3}),
-                      "coulomb", ("x", "y"), {"fc": FC})
+    gen = st
+    for kind, between, coeffs in effects:
+        gen = with_effect(gen, kind, between, coeffs)
     theta = gen.vector(NOMINAL)
-    train = synthetic_impacts(gen, theta, [60.0, 150.0], dof="y", fs=1024.0, duration=2.0,
-                              seed=1)
-    val = synthetic_impacts(gen, theta, [30.0, 200.0], dof="y", fs=1024.0, duration=2.0,
-                            seed=2)
+    train, val = (synthetic_impacts(gen, theta, amps, dof="y", fs=1024.0, duration=duration,
+                                    seed=seed)
+                  for amps, seed in (([60.0, 150.0], seeds[0]), ([30.0, 200.0], seeds[1])))
     proc = Processing.none()
     gap, blocks = validation_gap(st, st.vector(NOMINAL), val, proc)
+    return st, train, val, proc, gap, blocks
+
+
+@pytest.fixture(scope="module")
+def pair_case():
+    st, train, val, proc, gap, blocks = two_dof_records(
+        [("cubic_spring", ("x", "ground"), {"k3": K3}), ("coulomb", ("x", "y"), {"fc": FC})],
+        2.0, (1, 2))
     noise = spectral_noise_floor(st, val, proc, st.vector(NOMINAL))
     return st, train, val, proc, gap, blocks, noise
 
