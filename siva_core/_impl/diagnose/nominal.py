@@ -195,6 +195,10 @@ FAILED = 0.5
 FAILED_GAIN = 2.0
 
 
+#: a noise-limited high-pass this many times the chain's is worth a start of its own
+RAISE_MIN = 1.5
+
+
 def _raised_highpasses(chain: Processing, noise_hz: float | None) -> list[float]:
     """High-pass corners between ``chain``'s and the noise-limited one, or [] when the
     chain's is already there: see ``_quieter_starts``."""
@@ -204,15 +208,12 @@ def _raised_highpasses(chain: Processing, noise_hz: float | None) -> list[float]
     return [float(np.sqrt(fh * noise_hz)), float(noise_hz)]
 
 
-#: a noise-limited high-pass this many times the chain's is worth a start of its own
-RAISE_MIN = 1.5
-
-
 def _quieter_starts(structure: Structure, train: Sequence[Recording], proc: Processing,
                     chains: Sequence[tuple[str, Processing]], fit: NominalFit,
                     settings: DiagnoseSettings, progress: Progress | None) -> NominalFit:
-    """A failed nominal fit (train cost above ``FAILED``) tried again from least squares on states high-passed up to the
-    noise-limited corner (``SpectrumSummary.noise_hz``), and from their linear parts.
+    """A failed nominal fit (train cost above ``FAILED``) tried again from least squares
+    on states high-passed up to the noise-limited corner (``SpectrumSummary.noise_hz``),
+    and from their linear parts.
 
     ``Processing.auto`` keeps the high-pass at most half the lowest "significant" peak;
     coloured (low-frequency) noise makes such peaks of its own, and then the doubly
