@@ -12,7 +12,7 @@ from siva_core._impl.diagnose.grow import law_swap, refit_from_lead, second_lead
 from siva_core._impl.diagnose.scoring import judge
 from siva_core._impl.diagnose.screening import select_for_fit
 from siva_core._impl.diagnose.set_fit import _refit
-from siva_core._impl.diagnose.sets import fit_pair
+from siva_core._impl.diagnose.pair_fit import fit_pair
 from test_diagnose_sets import NOMINAL, two_dof_records
 
 G = Location(0, -1, ("x", "ground"))

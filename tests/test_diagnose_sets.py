@@ -14,7 +14,8 @@ from siva_core import EFFECTS, Processing, Structure
 from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.scoring import judge, validation_gap
-from siva_core._impl.diagnose.sets import better, contributions, fit_pair
+from siva_core._impl.diagnose.pair_fit import fit_pair
+from siva_core._impl.diagnose.sets import better, contributions
 from siva_core._impl.diagnose.where import spectral_noise_floor
 from siva_core._impl.diagnose.verdict import look_alike
 

@@ -5,7 +5,7 @@ structural effects and a sensor fault) was named only when the greedy stages hap
 find all three in turn.  Here a fitted set (a pair) gets one more member -- a structural
 single at a place the set does not use, or a sensor fault when it has none -- and the
 whole set is re-fitted jointly from the set's fit and the member's single fit, the same
-way ``sets.fit_pair`` fits a pair: a sensor fault's value is re-tuned with the structural
+way ``pair_fit.fit_pair`` fits a pair: a sensor fault's value is re-tuned with the structural
 model (``joint_sensor``), a structural member joins the model on the records the set's
 sensor member corrects.  Also here: which singles the pair search pairs beyond the
 combinations of its members (``partners``: the lead with other kinds by train cost;
@@ -28,7 +28,7 @@ from .model_edit import augmented
 from .outputs import Progress, _say
 from .parallel import run_each, worker_count
 from .results import Candidate
-from .set_fit import SetFit, _refit, finish_set, refit_stopped, set_stop
+from .set_fit import SetFit, _refit, finish_set, mark_stopped, refit_stopped, set_stop
 from .settings import DiagnoseSettings
 
 
@@ -49,7 +49,7 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
          progress: Progress | None = None, against: float = math.inf) -> SetFit | None:
     """``base`` plus the fitted single ``c``, re-fitted jointly and judged on the
     validation records; None when it cannot be built or simulated.  ``against``: the
-    best train cost known (``set_fit.set_stop``, as ``sets.fit_pair``)."""
+    best train cost known (``set_fit.set_stop``, as ``pair_fit.fit_pair``)."""
     if not can_grow(base, c) or base.structure is None or base.theta is None:
         return None
     t0 = time.perf_counter()
@@ -87,10 +87,8 @@ def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recor
     members = [sensor if m.category == "sensor" else m for m in base.members]
     members += [sensor] if c.category == "sensor" else [c]
     out = SetFit(effect, loc, shape, structure=aug, names=names, theta=theta, fitted=True,
-                 amplitudes=amps, members=members, sensor=sensor, stopped=stopped)
-    if stopped:
-        out.note = (f"joint fit stopped early: train cost {cost:.3g} > "
-                    f"{settings.stop_ratio:g} x the best set's {against:.3g}")
+                 amplitudes=amps, members=members, sensor=sensor)
+    mark_stopped(out, stopped, cost, against, settings)
     finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
     out.fit_time_s = time.perf_counter() - t0
     return out

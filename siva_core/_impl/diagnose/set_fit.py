@@ -69,6 +69,15 @@ def finish_set(out: SetFit, cost: float, res: object, val: Sequence[Recording],
     return out
 
 
+def mark_stopped(out: SetFit, stopped: bool, cost: float, against: float,
+                 settings: DiagnoseSettings) -> None:
+    """``out.stopped`` and, when it was, the note saying against what."""
+    out.stopped = stopped
+    if stopped:
+        out.note = (f"joint fit stopped early: train cost {cost:.3g} > "
+                    f"{settings.stop_ratio:g} x the best set's {against:.3g}")
+
+
 def set_stop(reference: float, settings: DiagnoseSettings, reachable: float = math.inf
              ) -> StopRule | None:
     """The early stop of a set's joint fit (speed, issue 16 must-show 3): ``cannot_win``

@@ -47,7 +47,7 @@ class DiagnoseSettings:
         (``verdict.sensor_above_noise``): a right fault leaves the noise, which on a gap
         2-3 x the floor is only 0.4-0.6 of the whole gap.
     pairs: when no single effect explains the gap to the noise, the leading singles are
-        paired and each pair re-fitted jointly (``sets.fit_pair``); sets are compared by
+        paired and each pair re-fitted jointly (``pair_fit.fit_pair``); sets are compared by
         their validation gap (``sets.better``): more than one cause as the normal case.
     pair_members: how many structural singles (distinct places) are paired, plus the
         best sensor fault.
