@@ -23,7 +23,7 @@ from .results import Candidate
 from .scoring import judge as _judge
 from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
                         select_for_fit)
-from .pulse_reading import explained_by_reading
+from .pulse_reading import explained_by_reading, shadowed_by_reading
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .verdict import look_alike
@@ -331,6 +331,15 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
                       "explains: not named")
             _say(progress, f"{c.label()}: gain {c.coefficients.get('gain', math.nan):.4g} "
                            "is within the pulse-reading band: not a fault")
+    for c in fitted:  # ... and one channel's gain that the common (force) gain out-fits
+        shadow = shadowed_by_reading(c, fitted)
+        if shadow is not None and not c.reading:
+            c.reading = True
+            c.note = (f"{shadow.label()}, within the pulse-reading band, fits at least as "
+                      "well: a share of the reading error, not named")
+            _say(progress, f"{c.label()}: {shadow.label()} (pulse reading) fits the train "
+                           f"records at least as well ({shadow.train_cost:.4g} <= "
+                           f"{c.train_cost:.4g}): not a fault")
     stage_cands = cands + sens
     # best closure first; a gain the pulse reading explains after the others (never a
     # verdict, nor the tentative first effect)
