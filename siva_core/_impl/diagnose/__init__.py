@@ -30,7 +30,8 @@ Method (docs/diagnosis.md has the full rationale and the measured results):
    clearly less gap than the best candidate of a *different* kind (``separation``), and
    (d) no validation record gets worse with it (``record_tolerance``).  Otherwise null.
    A force gain within what the hammer pulse's reading between its samples explains is
-   never named (``pulse_reading``).
+   never named (``pulse_reading``), nor an accelerometer gain that such a force gain
+   (one common gain of every response channel) out-fits on the train records.
 6. **Where**: the nominal model's validation residual split per DOF, per record (against
    amplitude), early/middle/late in each decay (by share of response energy) and by
    frequency band (around the nominal linear modes), with a one-paragraph explanation.
