@@ -158,13 +158,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
                gap_before: float, before_blocks: np.ndarray, noise: float | None,
                settings: DiagnoseSettings, progress: Progress | None = None,
-               later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = ()
+               later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = (),
+               reading_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset()
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
     ``later``: structural candidates of the stages after a named sensor fault, each
     paired with that fault (its value re-fitted with them: ``joint_sensor``).
-    ``scanned``: the first stage's screened and scanned candidates (``joiners``)."""
+    ``scanned``: the first stage's screened and scanned candidates (``joiners``).
+    ``reading_keys``: sensor faults whose last stage fit marked them ``reading``
+    (``pulse_reading.shadowed_by_reading``): a set's re-fitted copy of one is refused too."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -279,7 +282,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                        for k, w in enumerate(without)]
         need = settings.closure_min if verdict is not None else settings.tentative_closure
         # a sensor member re-fitted with the set may land within the pulse-reading band
-        reading = any(m.category == "sensor" and (m.reading or explained_by_reading(
+        reading = any(m.category == "sensor" and (m.reading or m.key in reading_keys
+                                                  or explained_by_reading(
             m, train, s.structure, s.theta)) for m in s.members)
         checks = {"relevant": _relevant(gap_before, s.closure, noise, settings),
                   "not_pulse_reading": not reading,
