@@ -306,7 +306,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # above the noise floor
         ref = nuisance if nuisance is not None else gap_before
         named = [w for w, r in zip(without, reading) if not (r and nuisance is not None)]
-        checks = {"relevant": _relevant(gap_before, 1.0 - s.gap_after / ref, noise, settings),
+        checks = {"relevant": _relevant(ref, 1.0 - s.gap_after / ref, noise, settings),
                   "not_pulse_reading": not any(reading) or nuisance is not None,
                   "closure": bool(1.0 - s.gap_after / ref >= need or closes_above_noise(
                       ref, s.gap_after, noise, need, settings)),
