@@ -94,7 +94,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             later += after_sensor(rk, cur_fit.train_cost, settings)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
-        v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts))
+        v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts), spectral=noise)
         stages.append({"gap_before": cur_gap, "rule": r,
                        "ranking": [c.label() for c in rk],
                        "verdict": v.label() if v is not None else None})
