@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from siva_core import Recording, Structure
-from siva_core._impl.diagnose.model_edit import with_effect
-from siva_core._impl.output_error import OutputErrorProblem
-from siva_core._impl.simulate import simulate
-from siva_core._impl.simulate.substeps import REAL_H_FIT, auto_substeps
+from siva_core import (OutputErrorProblem, Recording, Structure, auto_substeps, simulate,
+                       with_effect)
+from siva_core._impl.simulate.substeps import REAL_H_FIT
 
 #: the LO-NO rig's nominal values (benchmarks/matrix.py) and its large coulomb at NO-ground
 LONO = {"b1": 3.8405, "b2": 0.78563, "k1": 19273.0, "k2": 1947.6, "alpha": 2.7641e7,
