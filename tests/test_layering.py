@@ -45,6 +45,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_parallel.py": {"siva_core._impl.diagnose.parallel": "the worker pool"},
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",
                                           "siva_core._impl.effects": "effect amplitudes"},
+    "tests/test_diagnose_substeps.py": {"siva_core._impl.simulate.substeps": "the fits' "
+                                        "real-axis substep bound"},
     "tests/test_chain_cache.py": {"siva_core._impl.chain_cache": "clearing the memo"},
     "tests/test_fast_paths.py": {"siva_core._impl.processing": "the compiled filter vs scipy's",
                                  "siva_core._impl.pulse_kick": "the sampled-force correction",

@@ -11,6 +11,7 @@ import numpy as np
 from ..processing import Processing, States
 from ..pulse_kick import sampled_force_acceleration, single_pulse
 from ..recording import Recording
+from ..simulate.substeps import REAL_H_FIT
 from ..simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
                         simulate, simulate_split)
 from ..simulate import grid as _grid
@@ -52,9 +53,12 @@ class OutputErrorProblem:
               processing: Processing | None = None, *, quantity: str | Sequence[str] = "auto",
               theta_ref: Any | None = None, substeps: int | str | None | Sequence[int] = "auto",
               backend: str = "auto", omega_h: float = OMEGA_H, force_gate: str | None = "auto",
-              initial: str = "auto", interp: str | None = None) -> "OutputErrorProblem":
+              initial: str = "auto", interp: str | None = None,
+              real_h: float | None = REAL_H_FIT) -> "OutputErrorProblem":
         """Prepare the records.  ``substeps``: an int, one int per record, or "auto" (then
-        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets).
+        ``theta_ref``, (n_free,) or (B, n_free), sets them: fastest rate over those sets;
+        ``real_h``: the looser bound for real-axis rates, ``simulate.substeps.REAL_H_FIT`` —
+        a fit needs the integration accurate to the noise, not to 1e-7).
         ``interp``: the measured force between samples (``stage_force``; None =
         ``simulate.grid.MEASURED_FORCE_INTERP``, read at call time)."""
         processing = processing or Processing()
@@ -89,7 +93,7 @@ class OutputErrorProblem:
                     raise ValueError("substeps='auto' needs theta_ref")
                 th = np.atleast_2d(np.asarray(theta_ref, dtype=float))
                 m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
-                                  omega_h=omega_h, backend=use, interp=interp)
+                                  omega_h=omega_h, backend=use, interp=interp, real_h=real_h)
             state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
                                         np.sqrt(np.mean(meas.v ** 2, axis=0))])
             pulse, hit = single_pulse(force)
