@@ -7,8 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from siva_core import diagnose
-from siva_core._impl.diagnose import DiagnoseSettings
+from siva_core import DiagnoseSettings, diagnose
 from siva_core._impl.diagnose.verdict import closes_above_noise
 
 ROOT = Path(__file__).resolve().parents[1]

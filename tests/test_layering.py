@@ -59,6 +59,12 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.ensemble": "dropping a diverged epoch",
         "siva_core._impl.siva": "moving candidates inside the bounds",
         "siva_core._impl.refine": "every candidate diverging"},
+    "tests/test_diagnose_faint.py": {
+        "siva_core._impl.diagnose.verdict": "the size check on the gap above the noise"},
+    "tests/test_diagnose_sensor_shadow.py": {
+        "siva_core._impl.diagnose.pulse_reading": "the shadowed-gain rule",
+        "siva_core._impl.diagnose.results": "candidates built with the rule's numbers",
+        "siva_core._impl.diagnose.sensor_faults": "the fault kinds"},
     "tests/test_diagnose_report_text.py": {
         "siva_core._impl.diagnose.report": "the report's sentences",
         "siva_core._impl.diagnose.signatures": "the damping reading",
