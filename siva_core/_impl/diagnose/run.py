@@ -17,6 +17,7 @@ from .fitting import bootstrap_intervals
 from .band import fit_nominal_in_band
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
+from .pulse_reading import shadowed_by_reading
 from .results import Candidate, Diagnosis
 from .scoring import validation_gap
 from .settings import DiagnoseSettings
@@ -77,7 +78,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     later: list[Candidate] = []
     rule: dict[str, Any] = {}
     cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
-    reading: dict[tuple[str, tuple[str, str]], bool] = {}
+    shadowed: dict[tuple[str, tuple[str, str]], bool] = {}
     cur_gap, cur_blocks = gap_before, before_blocks
     for n in range(n_stages):
         tag = "" if n == 0 else f"stage{n + 1}_"
@@ -87,9 +88,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                             v.category == "sensor" for v in verdicts),
                         progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
                         noise)
-        for c in rk:  # a sensor fault's last judgement: a set's copy of it inherits it
+        for c in rk:  # a gain's last shadow judgement: a set's copy of it inherits it
             if c.category == "sensor":
-                reading[c.key] = c.reading
+                shadowed[c.key] = shadowed_by_reading(c, rk) is not None
         if any(v.category == "sensor" for v in verdicts):  # paired with it at the end
             later += after_sensor(rk, cur_fit.train_cost, settings)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
@@ -160,7 +161,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
         psd_floor, settings, progress, later, cands,
-        frozenset(k for k, r in reading.items() if r))
+        frozenset(k for k, r in shadowed.items() if r))
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]

@@ -177,15 +177,17 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                gap_before: float, before_blocks: np.ndarray, noise: float | None,
                settings: DiagnoseSettings, progress: Progress | None = None,
                later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = (),
-               reading_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset()
+               shadowed_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset()
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
     ``later``: structural candidates of the stages after a named sensor fault, each
     paired with that fault (its value re-fitted with them: ``joint_sensor``).
     ``scanned``: the first stage's screened and scanned candidates (``joiners``).
-    ``reading_keys``: sensor faults whose last stage fit marked them ``reading``
-    (``pulse_reading.shadowed_by_reading``): a set's re-fitted copy of one is refused too."""
+    ``shadowed_keys``: accelerometer gains whose last stage found them shadowed by a force
+    gain within the pulse-reading band (``pulse_reading.shadowed_by_reading``): a set with
+    a re-fitted copy of one is refused too.  A force gain within the band is not among
+    them: in a set it is the records' nuisance (``nuisance_reading``)."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -306,7 +308,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             m, train, s.structure, s.theta)) for m in s.members]
         # an accelerometer gain its stage found shadowed by the force gain's reading
         # (``pulse_reading.shadowed_by_reading``) refuses the set: not a nuisance either
-        shadowed = any(m.category == "sensor" and m.key in reading_keys for m in s.members)
+        shadowed = any(m.key in shadowed_keys for m in s.members)
         nuisance = nuisance_reading(s, reading, single_gap, gap_before)
         # the size: of the gap (of what the nuisance gain alone leaves), or of its part
         # above the noise floor
