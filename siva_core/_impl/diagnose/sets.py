@@ -28,7 +28,7 @@ from .grow import grow_sets, joiners, partners, refit_from_lead, second_leads
 from .outputs import Progress, _Outputs, _say
 from .pair_fit import best_known, fit_pair
 from .parallel import run_each, worker_count
-from .pulse_reading import explained_by_reading
+from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
@@ -152,23 +152,6 @@ def _relevant(gap_before: float, closure: float, noise: float | None,
                    and gap_before >= settings.faint_noise * noise
                    and closure >= settings.closure_min))
     return bool(above and visible)
-
-
-def nuisance_reading(s: Candidate, reading: Sequence[bool], single_gap: dict,
-                     gap_before: float) -> float | None:
-    """The validation gap the set's pulse-reading gain leaves alone, when the set is that
-    gain (one sensor member within the pulse-reading band) and structural effects: the
-    gain is then a nuisance of the records -- how a few-sample hammer pulse is read between
-    its samples -- fitted with the set and never named, and the structural members are
-    judged on what it leaves (issue 16, fresh seed 17026: a cubic spring closed 0.36 alone,
-    0.96 with a force gain 1.083 inside the band; the truth model, refitted, closes 0.36
-    too: the rest of the gap is the reading).  None otherwise."""
-    members = s.members if isinstance(s, SetFit) else [s]
-    if sum(reading) != 1 or not any(m.category == "structure" for m in members):
-        return None
-    gain = members[list(reading).index(True)]
-    ref = single_gap.get(gain.key, gap_before)
-    return float(ref) if np.isfinite(ref) and ref > 0 else None
 
 
 def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
