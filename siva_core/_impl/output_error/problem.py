@@ -11,9 +11,8 @@ import numpy as np
 from ..processing import Processing, States
 from ..pulse_kick import sampled_force_acceleration, single_pulse
 from ..recording import Recording
-from ..simulate.substeps import REAL_H_FIT
-from ..simulate import (OMEGA_H, _choose_backend, auto_substeps, initial_state_and_force,
-                        simulate, simulate_split)
+from ..simulate import (OMEGA_H, REAL_H_FIT, _choose_backend, auto_substeps,
+                        initial_state_and_force, simulate, simulate_split)
 from ..simulate import grid as _grid
 from ..simulate.grid import adjusted_stage_force
 from . import sample_gain

@@ -14,7 +14,7 @@ with more substeps.
 Modules (pure numerics: no records, no processing chain):
 
 - ``solver``: ``simulate`` and ``Simulation``; ``warmup``.
-- ``substeps``: the automatic step choice (``auto_substeps``, ``OMEGA_H``).
+- ``substeps``: the automatic step choice (``auto_substeps``, ``OMEGA_H``, ``REAL_H_FIT``).
 - ``grid``: the force on the RK4 stage grid (``stage_force``), the divergence bound.
 - ``backends``: which backend runs, and dispatch to it.
 - ``numba_kernel``: a kernel generated from the element kinds' ``expr`` strings
@@ -35,7 +35,7 @@ from .backends import choose_backend
 from .grid import MEASURED_FORCE_INTERP, adjusted_stage_force, set_measured_force_interp, stage_force
 from .numba_kernel import compiled_kernel
 from .solver import Simulation, simulate, simulate_split, warmup
-from .substeps import OMEGA_H, auto_substeps
+from .substeps import OMEGA_H, REAL_H_FIT, auto_substeps
 
 #: the previous private name, still imported by callers outside this package
 _choose_backend = choose_backend
@@ -54,4 +54,4 @@ def __getattr__(name: str) -> Any:
 
 __all__ = ["Simulation", "simulate", "simulate_split", "auto_substeps", "initial_state_and_force", "gate_force",
            "compiled_kernel", "warmup", "stage_force", "adjusted_stage_force", "MEASURED_FORCE_INTERP", "set_measured_force_interp", "choose_backend",
-           "OMEGA_H"]
+           "OMEGA_H", "REAL_H_FIT"]
