@@ -170,3 +170,44 @@ def nuisance_reading(s: Candidate, reading: Sequence[bool], single_gap: dict,
     gain = members[list(reading).index(True)]
     ref = single_gap.get(gain.key, gap_before)
     return float(ref) if np.isfinite(ref) and ref > 0 else None
+
+
+#: below this band the statement is not made: a gain that small is within the records'
+#: noise anyway (the smallest gain fault the issue's generator draws is 7 %)
+READING_LIMIT_MIN = 0.01
+
+
+def reading_limit(structure: Structure, theta: np.ndarray,
+                  records: Sequence[Recording]) -> dict | None:
+    """What the records cannot tell: a force gain on the hammered channel between
+    ``1 / (1 + band)`` and ``1 + band`` (``band`` as ``reading_band`` gives it at the
+    nominal model's lowest mode) is what the hammer pulse's reading explains, so a gain
+    fault that size is not identifiable from these records, whichever effects are named
+    (issue 16, fresh seeds 17164, 17184, 17216: 2-sample pulses at 362-453 Hz leave the
+    impulse open by more than 100 %; gains 0.84-0.88 were drawn and not named).  Said
+    explicitly in the verdict so a missing gain there reads as the limit it is.  None
+    when there is no hammer channel, no single short pulse, or the band is under
+    ``READING_LIMIT_MIN``."""
+    if not records or not any(r.has_force(structure.dofs) for r in records):
+        return None
+    try:
+        modes = [f for f in structure.linear_modes(theta)["frequency_hz"] if f > 0]
+    except Exception:  # noqa: BLE001 - no modes, no statement
+        return None
+    imp = impulse_band(records, structure.dofs)
+    if not modes or not imp > 0:
+        return None
+    band = READING_MARGIN * reading_difference(min(modes), min(r.fs for r in records)) + imp
+    if band < READING_LIMIT_MIN:
+        return None
+    forced = next(r for r in records if r.has_force(structure.dofs))
+    force = forced.stack("force", list(structure.dofs), fill=0.0)
+    dof = structure.dofs[int(np.argmax(np.max(np.abs(force), axis=0)))]
+    low, high = 1.0 / (1.0 + band), 1.0 + band
+    text = (f"a force gain on force_{dof} between {low:.3g} and {high:.3g} cannot be told "
+            f"from the hammer pulse's reading (its samples leave the impulse open by "
+            f"{imp:.1%})")
+    if structure.n_dof == 1:
+        text += f", nor an accelerometer gain on acc_{dof} between {low:.3g} and {high:.3g}"
+    return {"channel": f"force_{dof}", "low": low, "high": high, "band": band,
+            "impulse_band": imp, "text": text}

@@ -209,6 +209,9 @@ def html_report(diag: Diagnosis) -> str:
                    + (f" Best tried: {esc(best.label())} (closure {best.closure:.2f})."
                       if best else "") + "</div>")
         hint = ""
+    limit = diag.rule.get("pulse_reading_limit")
+    if limit and diag.verdicts:  # with no verdict it is already in the reason shown
+        hint += f"<p class='small'>Not identifiable from these records: {esc(limit['text'])}.</p>"
     rank_rows = [[c.label(), c.category, _f(c.gap_after), _f(c.closure, ".3f"),
                   _coeffs(c.effect.kind, c.coefficients, {k: list(x) for k, x in
                                                           c.intervals.items()}),

@@ -17,7 +17,7 @@ from .fitting import bootstrap_intervals
 from .band import fit_nominal_in_band
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
-from .pulse_reading import shadowed_by_reading
+from .pulse_reading import reading_limit, shadowed_by_reading
 from .results import Candidate, Diagnosis
 from .scoring import validation_gap
 from .settings import DiagnoseSettings
@@ -165,6 +165,10 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]
+    limit = reading_limit(structure, theta, [*train, *val])
+    if limit is not None:  # what no verdict can say either way (pulse_reading's doc)
+        rule["pulse_reading_limit"] = limit
+        rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {limit['text']}"
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
             f" No candidate is named: {rule['reason']}."
