@@ -11,7 +11,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .joint_sensor import retune_sensor
+from .joint_sensor import force_scale_retune, retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _say
 from .results import Candidate
@@ -54,6 +54,13 @@ def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[R
                                                        max(10, settings.fit_nfev // 2))
             if again is not None:
                 b, theta, cost, res = again
+            # a force gain found afresh with the structural model (force_scale_retune's
+            # doc): the lower train cost wins
+            fresh = None if stopped else force_scale_retune(
+                b, aug, np.asarray(a.theta, float), train, proc,
+                max(10, settings.fit_nfev // 2))
+            if fresh is not None and fresh[2] < cost:
+                b, theta, cost, res = fresh
             out = SetFit(a.effect, a.loc, dict(a.shape), structure=aug, names=names,
                          theta=theta, fitted=True, amplitudes=a.amplitudes,
                          members=[a, b], sensor=b)
