@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 
 import scenario_bounds as bounds
+from pulse_truth import gain_reading
 from siva_core import EFFECTS, Recording, Structure, simulate, with_effect
 
 KINDS = ("coulomb", "damper", "quadratic_damper", "cubic_damper", "spring", "cubic_spring",
@@ -170,7 +171,10 @@ def _structure(rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, floa
     return spec, truth
 
 
-def _pulse(t: np.ndarray, peak: float, width: float, t0: float = 0.05) -> np.ndarray:
+PULSE_T0 = 0.05  # s: when the hammer hits
+
+
+def _pulse(t: np.ndarray, peak: float, width: float, t0: float = PULSE_T0) -> np.ndarray:
     x = (t - t0) / width
     return np.where((x >= 0) & (x <= 1), peak * np.sin(np.pi * np.clip(x, 0.0, 1.0)), 0.0)
 
@@ -533,7 +537,9 @@ def draw(seed: int, force_reading: str = "continuous") -> Scenario:
             "bounds": [checked.get(place, {}) for _, place, _ in effects],
             "drawn": {"structural": min(n_struct, MAX_STRUCTURAL),
                       "fault": fault[0] if fault else None},
-            "redraws": redraws, "dropped": dropped}
+            "redraws": redraws, "dropped": dropped,
+            # a gain fault within the pulse reading, from the truth (pulse_truth's doc)
+            "gain_reading": gain_reading(fault, len(dofs), width, fs, PULSE_T0, force_noise)}
     return Scenario(seed, nominal, truth, force_dof, effects, fault, train, val,
                     visibility, info)
 
