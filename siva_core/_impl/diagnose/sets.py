@@ -242,11 +242,13 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                                           settings)
 
         options += fit_all(pairs)
-        # the look-alike second leads, each with the lead's best mates: the structural
-        # members at another place of the lead's best pairs by validation gap
+        # the look-alike second leads, each with the lead's best mates: the members at
+        # another place (or the sensor fault) of the lead's best pairs by validation gap
+        # (fresh seed 17219: a quadratic damper + force gain led, the cubic damper with
+        # the same gain, never paired before, closes 0.96 against 0.88)
         swaps = []
         if lead is not None and seconds:
-            best = sorted((o for o in options if len(o.members) == 2 and o.sensor is None
+            best = sorted((o for o in options if len(o.members) == 2
                            and np.isfinite(o.gap_after)
                            and any(m.key == lead.key for m in o.members)),
                           key=lambda o: o.gap_after)
