@@ -17,6 +17,8 @@ OUTSIDE = ("examples", "benchmarks", "service", "clients", "siva_cli", "tests")
 #: tests of private behaviour that may import siva_core._impl: {file: {module: why}}
 PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_simulate.py": {"siva_core._impl.simulate": "the numba kernel cache"},
+    "tests/test_diagnose_gain_reading.py": {
+        "siva_core._impl.diagnose.pulse_reading": "reading_limit on synthetic hits"},
     "tests/test_refine.py": {"siva_core._impl.output_error": "patches the problem's simulate"},
     "tests/test_sample_gain.py": {"siva_core._impl.output_error.sample_gain": "its pattern"},
     "tests/test_training.py": {"siva_core._impl.networks": "the networks' internals"},
