@@ -4,7 +4,10 @@
 A case is *complete* when the named effects are exactly the expected ones (kind and place,
 or fault and channel; nothing missing, nothing more).  Rates are reported per category
 (null, single, two effects) and for the faint effects (visibility < 5 x the noise) and
-those at >= 5 x.  Each row has the wall time, the process CPU time and the 1-minute load
+those at >= 5 x.  A force gain (or a 1-DOF model's accelerometer gain) that the hammer
+pulse's reading explains -- the generator's truth, ``pulse_truth.py``: a fault-free hammer
+with another half-sine through the same samples gives the same records -- is counted as
+its own class, "gain within the pulse reading", beside the strict count (never instead).  Each row has the wall time, the process CPU time and the 1-minute load
 average at the end of the case (the machine is shared: the wall time depends on the load).
 
 Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
