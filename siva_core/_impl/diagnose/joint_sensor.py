@@ -21,6 +21,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .pulse_reading import explained_by_reading
 from .results import Candidate
 from .sensor_faults import corrected, corrected_cost, value_parabola
 from .settings import FAST
@@ -117,6 +118,13 @@ def force_scale_retune(sensor: Candidate, structure: Structure, theta: np.ndarra
     moved = copy.copy(sensor)
     moved.coefficients = {mag: value}
     moved.intervals = {}
+    # a 1-DOF accelerometer gain within the pulse-reading band is the reading's share,
+    # which the force gain models (``pulse_reading.shadowed_by_reading``): the
+    # accelerometer's copy would rescale the response, and a nonlinear coefficient with
+    # it (fresh seed 17026: cubic spring + acc gain fitted as well as + force gain, k3
+    # 14 % off against 0.4 %)
+    if fault.kind == "accelerometer_gain" and explained_by_reading(moved, train, structure, th):
+        return None
     again = retune_sensor(moved, structure, th, train, proc, nfev)
     if again is not None:
         return again
