@@ -3,7 +3,7 @@ linearised *and* amplitude-dependent (tangent) rate of the model."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -63,7 +63,7 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
     Q0 = np.broadcast_to(np.asarray(q0, dtype=float), (th.shape[0], n))[idx].copy()
     V0 = np.broadcast_to(np.asarray(v0, dtype=float), (th.shape[0], n))[idx].copy()
     covers_all = len(idx) == th.shape[0]
-    prev: np.ndarray | None = None  # each pilot set's first non-finite sample, last run
+    prev: list[np.ndarray] = []  # each pilot set's first non-finite sample, earlier runs
     for _ in range(6):
         Q, V, A = run(structure, sub, dt, n_samples, Q0, V0, force, m, backend, interp)
         if not np.all(np.isfinite(Q)):
@@ -73,10 +73,11 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
                 keep = ~esc
                 if not np.any(keep):
                     break
-                sub, Q0, V0, prev = sub[keep], Q0[keep], V0[keep], bad[keep]
+                sub, Q0, V0 = sub[keep], Q0[keep], V0[keep]
+                prev = [p[keep] for p in prev]  # the others run again at this m
                 covers_all = False
                 continue
-            prev = bad
+            prev.append(bad)
             if m >= max_substeps:
                 break
             m = min(max_substeps, 4 * m)  # the pilot itself blew up: refine and retry
@@ -100,8 +101,10 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
 
 
 #: a blow-up that moves by at most this share of its time (or 2 samples) when the step is
-#: cut 4 x has converged: it is the model's, not the integrator's (``escaping``)
+#: cut 4 x, twice (``ESCAPE_RUNS`` runs), has converged: it is the model's, not the
+#: integrator's (``escaping``)
 ESCAPE_TOL = 0.02
+ESCAPE_RUNS = 3
 
 
 def _first_bad(Q: np.ndarray) -> np.ndarray:
@@ -111,22 +114,28 @@ def _first_bad(Q: np.ndarray) -> np.ndarray:
 
 
 def escaping(structure: Any, theta: np.ndarray, Q: np.ndarray, V: np.ndarray,
-             bad: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
+             bad: np.ndarray, prev: Sequence[np.ndarray]) -> np.ndarray:
     """(B,) sets whose run escapes whatever the step: the blow-up sample ``bad`` stayed
-    where it was (``prev``, the run at 4 x fewer substeps) within ``ESCAPE_TOL``, and the
-    tangent just before it is unstable (an eigenvalue with Re > 0: a softening past its
-    turning point, a negative damper).  An integrator's instability moves when the step
-    shrinks, and grows on a stable tangent; an escape converges to a finite escape time.
+    where it was in the last ``ESCAPE_RUNS`` - 1 runs (``prev``, the earlier runs at 4, 16
+    ... x fewer substeps) within ``ESCAPE_TOL``, and the tangent just before it is unstable
+    (an eigenvalue with Re > 0: a softening past its turning point, a negative damper).
+    An integrator's instability moves when the step shrinks; an escape converges to a
+    finite escape time.  Two refinements, not one: an unstable step on a hardening element
+    can throw the state past a softening one's turning point at the same sample twice
+    (measured: 24206's 4-DOF frame, cubic springs; one refinement stopped at a step that
+    then diverged on a start that converges at a finer one).
     Why: least squares can start a fit at a softening cubic of -1.7e14 (truth +6.3e11); the
     blow-up loop then refined 2 -> 4096 substeps and the cost was simulated again there
     (2 GB of stage force, ~45 s of one nominal fit) to give infinity anyway."""
     out = np.zeros(len(bad), dtype=bool)
-    if prev is None:
+    if len(prev) < ESCAPE_RUNS - 1:
         return out
     T = Q.shape[1]
     for b in range(len(bad)):
-        k, k0 = int(bad[b]), int(prev[b])
-        if k >= T or k0 >= T or k < 2 or abs(k - k0) > max(2.0, ESCAPE_TOL * k0):
+        k = int(bad[b])
+        ks = [int(p[b]) for p in prev[-(ESCAPE_RUNS - 1):]]
+        if k >= T or k < 2 or any(k0 >= T or abs(k - k0) > max(2.0, ESCAPE_TOL * k0)
+                                  for k0 in ks):
             continue
         rows = np.arange(max(0, k - 4), k)
         out[b] = _max_growth(structure, theta[b:b + 1], Q[b, rows][:, None],
