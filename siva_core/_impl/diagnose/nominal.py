@@ -214,8 +214,8 @@ def _restarted(structure: Structure, train: Sequence[Recording], proc: Processin
                       flipped if flipped is not None else th))
     starts: list[tuple[str, np.ndarray]] = []
     for label, th in cands:
-        if th is not None and _plausible(structure, th, fs) and not any(
-                np.allclose(th, t, rtol=1e-3) for _, t in starts):
+        if th is not None and _plausible(structure, th, fs) and not any(  # news only
+                np.allclose(th, t, rtol=1e-3) for t in (fit.theta, *(t for _, t in starts))):
             starts.append((label, th))
     again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings, progress)
     if again is None:

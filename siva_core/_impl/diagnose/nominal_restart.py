@@ -109,11 +109,17 @@ def refine_restarts(structure: Structure, train: Sequence[Recording], proc: Proc
     not rank basins (the quieter starts measured that on 19000)."""
     from ..refine import output_error, refine
 
+    def stop(stage: int, last: bool, iteration: int, c: float, prob: object = None) -> bool:
+        """Speed: on the full records, a restart still above the fit's cost after
+        ``stop_after`` iterations would need the rest to halve it (``early_stop``'s
+        measurements: the last iterations gain a small factor)."""
+        return last and iteration >= settings.stop_after and c > cost
+
     best: tuple[str, np.ndarray, float] | None = None
     for label, th in starts:
         try:
             res = refine(structure, th, list(train), proc, max_nfev=settings.nominal_nfev,
-                         uncertainty=FAST)
+                         uncertainty=FAST, stop=stop)
             c = float(output_error(structure, res.theta[None], list(train), proc)[0])
         except Exception:  # noqa: BLE001 - a start that cannot be simulated
             continue
