@@ -49,6 +49,10 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
                                           "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_diagnose_substeps.py": {"siva_core._impl.simulate.substeps": "the fits' "
                                         "real-axis substep bound"},
+    "tests/test_diagnose_nominal_restart.py": {"siva_core._impl.diagnose": "the nominal "
+                                               "fit and its restarts"},
+    "tests/test_diagnose_escape.py": {"siva_core._impl.simulate.substeps": "the escape "
+                                      "rule of the substep pilot"},
     "tests/test_chain_cache.py": {"siva_core._impl.chain_cache": "clearing the memo"},
     "tests/test_fast_paths.py": {"siva_core._impl.processing": "the compiled filter vs scipy's",
                                  "siva_core._impl.pulse_kick": "the sampled-force correction",

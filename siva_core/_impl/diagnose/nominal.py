@@ -10,6 +10,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .nominal_restart import linear_refit, refine_restarts, spread_damping
 from .outputs import Progress, _say
 from .settings import FAST, DiagnoseSettings
 
@@ -176,14 +177,50 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
     ls = [(c, th, ch) for c, (_, th, ch) in zip(costs, starts) if ch is not None]
     ls_cost, ls_theta, ls_chain = min(ls, key=lambda x: x[0]) if ls else (0, None, None)
     _say(progress, f"nominal start: {label} (train cost {costs[best]:.4g})")
-    res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev,
-                 uncertainty=FAST)
-    c = float(output_error(structure, res.theta[None], list(train), proc)[0])
-    out = (NominalFit(res.theta, c, label, ls_theta, ls_chain) if c <= costs[best]
+    try:
+        res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev,
+                     uncertainty=FAST)
+        c = float(output_error(structure, res.theta[None], list(train), proc)[0])
+    except ValueError as exc:  # e.g. refine's own substeps diverge: the start stands,
+        _say(progress, f"nominal refinement failed ({exc}); the start kept")  # restarts next
+        res, c = None, math.inf
+    out = (NominalFit(res.theta, c, label, ls_theta, ls_chain)
+           if res is not None and c <= costs[best]
            else NominalFit(th0, costs[best], label, ls_theta, ls_chain))
     if out.train_cost > FAILED:
         out = _quieter_starts(structure, train, proc, chains, out, settings, progress)
+    if out.train_cost > settings.nominal_poor:
+        out = _restarted(structure, train, proc, out, th0, settings, progress)
     return out
+
+
+def _restarted(structure: Structure, train: Sequence[Recording], proc: Processing,
+               fit: NominalFit, th0: np.ndarray, settings: DiagnoseSettings,
+               progress: Progress | None) -> NominalFit:
+    """A poor nominal fit (train cost above ``nominal_poor``) tried again from other
+    basins (``nominal_restart``): its own point and its start with the damping spread over
+    the elements, and the linear least squares' springs with the nonlinear coefficients at
+    zero; each is refined, and kept only when it lowers the train cost ``RESTART_GAIN`` x."""
+    fs = min(r.fs for r in train)
+    cands = [("the fit, damping spread", spread_damping(structure, fit.theta)),
+             ("its start, damping spread", spread_damping(structure, th0))]
+    lin = linear_refit(structure, fit.ls_chain or proc, train)
+    if lin is not None:
+        th = structure.vector({**structure.as_dict(fit.theta),
+                               **{k: v for k, v in lin.items() if k in structure.free}})
+        th = linear_part(structure, th)
+        flipped = _dissipative(structure, th) if th is not None else None
+        cands.append(("least squares of the linear elements",
+                      flipped if flipped is not None else th))
+    starts: list[tuple[str, np.ndarray]] = []
+    for label, th in cands:
+        if th is not None and _plausible(structure, th, fs) and not any(  # news only
+                np.allclose(th, t, rtol=1e-3) for t in (fit.theta, *(t for _, t in starts))):
+            starts.append((label, th))
+    again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings, progress)
+    if again is None:
+        return fit
+    return NominalFit(again[1], again[2], again[0], fit.ls_theta, fit.ls_chain)
 
 
 #: a nominal fit leaving more than this share of its train records' energy has failed
