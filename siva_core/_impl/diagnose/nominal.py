@@ -221,10 +221,15 @@ def _other_signs(structure: Structure, train: Sequence[Recording], proc: Process
     from ..refine import output_error, refine
     fs = min(r.fs for r in train)
     best = fit
+    dissipative = {p for el in structure.elements if el.kind.name in DISSIPATIVE
+                   for p in el.params}
     for p in nonlinear_params(structure):
         i = list(structure.free).index(p)
-        if not fit.theta[i] != 0:
-            continue
+        info = structure.parameters[p]
+        if not fit.theta[i] != 0 or p in dissipative or (
+                info.lower is not None and info.lower >= 0) or (
+                info.upper is not None and info.upper <= 0):
+            continue  # one sign only: a dissipative law, or a sign the model bounds
         starts = []
         for f in FLIP_FACTORS:
             th = np.array(fit.theta, float)
