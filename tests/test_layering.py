@@ -44,6 +44,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
                                         "pulse reading",
                                         "siva_core._impl.simulate": "the force's readings"},
     "tests/test_diagnose_stages.py": {"siva_core._impl.diagnose": "the later stages"},
+    "tests/test_diagnose_nominal_sign.py": {"siva_core._impl.diagnose": "the nominal fit's "
+                                            "other-sign start",
+                                            "siva_core._impl.siva": "the processing choice"},
     "tests/test_diagnose_parallel.py": {"siva_core._impl.diagnose.parallel": "the worker pool"},
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",
                                           "siva_core._impl.effects": "effect amplitudes"},
