@@ -7,8 +7,9 @@ or fault and channel; nothing missing, nothing more).  Rates are reported per ca
 those at >= 5 x.  A force gain (or a 1-DOF model's accelerometer gain) that the hammer
 pulse's reading explains -- the generator's truth, ``pulse_truth.py``: a fault-free hammer
 with another half-sine through the same samples gives the same records -- is counted as
-its own class, "gain within the pulse reading", beside the strict count (never instead).  Each row has the wall time, the process CPU time and the 1-minute load
-average at the end of the case (the machine is shared: the wall time depends on the load).
+its own class, "gain within the pulse reading", beside the strict count (never instead).
+Each row has the wall time, the process CPU time and the 1-minute load average at the end
+of the case (the machine is shared: the wall time depends on the load).
 
 Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
 [--limit WALL_S | --cpu-limit CPU_S] [--force-reading continuous|linear]``
