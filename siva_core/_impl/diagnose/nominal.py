@@ -215,7 +215,7 @@ def _other_signs(structure: Structure, train: Sequence[Recording], proc: Process
                  progress: Progress | None) -> NominalFit:
     """``fit`` or, for each nonlinear coefficient of the model, the refinement from the
     start with that coefficient's sign flipped (``FLIP_FACTORS``; the best-costing start
-    is refined), whichever has the lower train cost (by ``FLIP_GAIN``).
+    is refined by ``refine_restarts``), whichever has the lower train cost (by ``FLIP_GAIN``).
 
     The sign of a nonlinear law (a hardening or softening cubic spring) separates basins:
     at small amplitude the records hardly see the coefficient, and a start on the wrong
@@ -226,11 +226,11 @@ def _other_signs(structure: Structure, train: Sequence[Recording], proc: Process
     by leaving the basin; from the flipped sign the fit reaches 3.6e-4 and a gap of
     0.0007).  Least squares on filtered states gets such a sign wrong easily, since the
     chain's bias is of the size of the nonlinear force."""
-    from ..refine import output_error, refine
+    from ..refine import output_error
     fs = min(r.fs for r in train)
-    best = fit
     dissipative = {p for el in structure.elements if el.kind.name in DISSIPATIVE
                    for p in el.params}
+    starts: list[tuple[str, np.ndarray]] = []
     for p in nonlinear_params(structure):
         i = list(structure.free).index(p)
         info = structure.parameters[p]
@@ -238,29 +238,25 @@ def _other_signs(structure: Structure, train: Sequence[Recording], proc: Process
                 info.lower is not None and info.lower >= 0) or (
                 info.upper is not None and info.upper <= 0):
             continue  # one sign only: a dissipative law, or a sign the model bounds
-        starts = []
+        flips = []
         for f in FLIP_FACTORS:
             th = np.array(fit.theta, float)
             th[i] *= f
             if _plausible(structure, th, fs):
-                starts.append(th)
-        if not starts:
-            continue
+                flips.append(th)
         try:
             costs = [float(output_error(structure, th[None], list(train), proc)[0])
-                     for th in starts]
-            th0 = starts[int(np.nanargmin(costs))]
-            res = refine(structure, th0, list(train), proc, max_nfev=settings.nominal_nfev,
-                         uncertainty=FAST)
-            c = float(output_error(structure, res.theta[None], list(train), proc)[0])
-        except Exception:  # noqa: BLE001 - the fit stands
+                     for th in flips]
+        except Exception:  # noqa: BLE001 - no start of that sign
             continue
-        _say(progress, f"nominal start with {p} of the other sign: train cost {c:.4g} "
-                       f"after refinement (was {best.train_cost:.4g})")
-        if np.isfinite(c) and c < (1.0 - FLIP_GAIN) * best.train_cost:
-            best = NominalFit(res.theta, c, f"{fit.start}, {p} of the other sign",
-                              fit.ls_theta, fit.ls_chain)
-    return best
+        if flips and np.any(np.isfinite(costs)):  # the best-costing flip is refined
+            starts.append((f"{fit.start}, {p} of the other sign",
+                           flips[int(np.nanargmin(costs))]))
+    again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings,
+                            progress, gain=1.0 / (1.0 - FLIP_GAIN)) if starts else None
+    if again is None:
+        return fit
+    return NominalFit(again[1], again[2], again[0], fit.ls_theta, fit.ls_chain)
 
 
 def _restarted(structure: Structure, train: Sequence[Recording], proc: Processing,

@@ -102,11 +102,11 @@ def linear_refit(structure: Structure, chain: Processing,
 
 def refine_restarts(structure: Structure, train: Sequence[Recording], proc: Processing,
                     starts: Sequence[tuple[str, np.ndarray]], cost: float,
-                    settings: DiagnoseSettings, progress: Progress | None
-                    ) -> tuple[str, np.ndarray, float] | None:
+                    settings: DiagnoseSettings, progress: Progress | None,
+                    gain: float = RESTART_GAIN) -> tuple[str, np.ndarray, float] | None:
     """(label, theta, train cost) of the best of ``starts`` after refinement, or None when
-    none lowers ``cost`` ``RESTART_GAIN`` x.  Each start is refined: starting costs do
-    not rank basins (the quieter starts measured that on 19000)."""
+    none lowers ``cost`` ``gain`` x.  Each start is refined: starting costs do not rank
+    basins (the quieter starts measured that on 19000)."""
     from ..refine import output_error, refine
 
     def stop(stage: int, last: bool, iteration: int, c: float, prob: object = None) -> bool:
@@ -124,7 +124,7 @@ def refine_restarts(structure: Structure, train: Sequence[Recording], proc: Proc
         except Exception:  # noqa: BLE001 - a start that cannot be simulated
             continue
         _say(progress, f"nominal restart from {label}: train cost {c:.4g} (was {cost:.4g})")
-        if np.isfinite(c) and c * RESTART_GAIN < cost and (best is None or c < best[2]):
+        if np.isfinite(c) and c * gain < cost and (best is None or c < best[2]):
             best = (label, res.theta, c)
     return best
 

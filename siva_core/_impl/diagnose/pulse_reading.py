@@ -113,15 +113,24 @@ def reading_band(c: Candidate, records: Sequence[Recording], structure: Structur
     kind = c.effect.kind
     if not (kind == "force_gain" or (kind == "accelerometer_gain" and structure.n_dof == 1)):
         return None
+    parts = _band_parts(structure, theta, records)
+    return None if parts is None else parts[0]
+
+
+def _band_parts(structure: Structure, theta: np.ndarray,
+                records: Sequence[Recording]) -> tuple[float, float] | None:
+    """(band, impulse band): ``READING_MARGIN`` x the readings' difference at the lowest
+    linear mode of ``theta`` and the records' lowest sampling rate, plus the impulse band;
+    None when the model has no usable mode."""
     try:
         modes = [f for f in structure.linear_modes(theta)["frequency_hz"] if f > 0]
     except Exception:  # noqa: BLE001 - no modes, no band
         return None
     if not modes:
         return None
+    imp = impulse_band(records, structure.dofs)
     fs = min(r.fs for r in records)
-    return (READING_MARGIN * reading_difference(min(modes), fs)
-            + impulse_band(records, structure.dofs))
+    return READING_MARGIN * reading_difference(min(modes), fs) + imp, imp
 
 
 def explained_by_reading(c: Candidate, records: Sequence[Recording],
@@ -190,16 +199,10 @@ def reading_limit(structure: Structure, theta: np.ndarray,
     ``READING_LIMIT_MIN``."""
     if not records or not any(r.has_force(structure.dofs) for r in records):
         return None
-    try:
-        modes = [f for f in structure.linear_modes(theta)["frequency_hz"] if f > 0]
-    except Exception:  # noqa: BLE001 - no modes, no statement
+    parts = _band_parts(structure, theta, records)
+    if parts is None or not parts[1] > 0 or parts[0] < READING_LIMIT_MIN:
         return None
-    imp = impulse_band(records, structure.dofs)
-    if not modes or not imp > 0:
-        return None
-    band = READING_MARGIN * reading_difference(min(modes), min(r.fs for r in records)) + imp
-    if band < READING_LIMIT_MIN:
-        return None
+    band, imp = parts
     forced = next(r for r in records if r.has_force(structure.dofs))
     force = forced.stack("force", list(structure.dofs), fill=0.0)
     dof = structure.dofs[int(np.argmax(np.max(np.abs(force), axis=0)))]
