@@ -132,7 +132,9 @@ class DiagnoseSettings:
         it is at least this many standard errors (``set_test.gain_z``; 3: one-sided
         0.1 % for a normal cross term).  Measured: a faint coulomb removing 0.53 x the
         floor on the 2-DOF test records scores 24, a coulomb or cubic spring added where
-        there is none scores < 0, one moving nothing ~1 (tests/test_diagnose_set_test).
+        there is none scores < 0, one moving nothing ~1 (tests/test_diagnose_set_test);
+        fresh seed 17241's 7 % accelerometer gain 12.8; invented members on the dev null
+        24332 up to 2.33, 17266's spurious force gain 2.22 (thin below 3).
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
