@@ -76,6 +76,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     ranking: list[Candidate] = []
     cands: list[Candidate] = []
     later: list[Candidate] = []
+    refused: list[Candidate] = []
     rule: dict[str, Any] = {}
     cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
     shadowed: dict[tuple[str, tuple[str, str]], bool] = {}
@@ -110,6 +111,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                            "a part of it, looking for a second effect")
         if v is None:
             _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
+            if verdicts:  # its best fits are still paired with the effect before it
+                refused = after_sensor(rk, cur_fit.train_cost, settings)
             break
         try:
             bootstrap_intervals(v, cur_train, proc)
@@ -161,7 +164,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
         psd_floor, settings, progress, later, cands,
-        frozenset(k for k, r in shadowed.items() if r))
+        frozenset(k for k, r in shadowed.items() if r), refused)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]

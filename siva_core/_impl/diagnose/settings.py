@@ -124,6 +124,17 @@ class DiagnoseSettings:
     lookalike_mates: ... that many mates.
     lookalike_pairs: at most this many such extra pair fits (CPU: a LO-NO pair fit takes
         10-30 s).
+    test_blocks: the held-out test of a set against a smaller one (``set_test``): the
+        noise's share of their gain (the cross term of the larger set's residual with the
+        change of the outputs) is summed over this many contiguous time blocks of each
+        validation record, whose spread gives its standard error ...
+    test_z: ... and a gain below ``sets.better``'s noise-floor margins still counts when
+        it is at least this many standard errors (``set_test.gain_z``; 3: one-sided
+        0.1 % for a normal cross term).  Measured: a faint coulomb removing 0.53 x the
+        floor on the 2-DOF test records scores 24, a coulomb or cubic spring added where
+        there is none scores < 0, one moving nothing ~1 (tests/test_diagnose_set_test);
+        fresh seed 17241's 7 % accelerometer gain 12.8; invented members on the dev null
+        24332 up to 2.33, 17266's spurious force gain 2.22 (thin below 3).
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
@@ -176,3 +187,5 @@ class DiagnoseSettings:
     lookalike_leads: int = 3
     lookalike_mates: int = 2
     lookalike_pairs: int = 6
+    test_blocks: int = 8
+    test_z: float = 3.0
