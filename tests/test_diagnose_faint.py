@@ -7,8 +7,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from siva_core import DiagnoseSettings, diagnose
-from siva_core._impl.diagnose.verdict import closes_above_noise
+from siva_core import EFFECTS, DiagnoseSettings, diagnose
+from siva_core._impl.diagnose.results import Candidate, Location
+from siva_core._impl.diagnose.verdict import closes_above_noise, decide
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,6 +26,34 @@ def test_the_size_check_counts_the_gap_above_the_noise_floor():
     # a gap 2.5 x the floor: 0.6 of its excess is only 0.9 x the floor removed
     assert not closes_above_noise(0.025, 0.016, 0.01, s.closure_min, s)
     assert not closes_above_noise(0.005, 0.008, 0.001, s.closure_min, s)  # worse
+
+
+def _fitted(kind: str, gap_before: float, gap_after: float) -> Candidate:
+    c = Candidate(EFFECTS[kind], Location(0, -1, ("m1", "ground")), {}, fitted=True,
+                  gap_before=gap_before, gap_after=gap_after,
+                  closure=1.0 - gap_after / gap_before)
+    c.per_record = [{"record": "val", "gap_before": gap_before, "gap_after": gap_after,
+                     "closure": c.closure}]
+    return c
+
+
+def test_a_gap_far_above_the_noise_is_not_reported_as_noise():
+    """Fresh seed 17227's numbers (branch absorbed): a 0.0024 gap, 110 x the floor, under
+    gap_min, whose best candidate (a clearance) closed 0.25 and a coulomb 0.05: refused,
+    and the reason says the gap's size against the floor and the closures, not that the
+    nominal model fits to the noise level.  A gap at the floor still reads so."""
+    s = DiagnoseSettings()
+    gap, floor = 0.0024064, 2.1786e-05
+    ranking = [_fitted("clearance", gap, 0.00181), _fitted("coulomb", gap, 0.00228)]
+    verdict, rule = decide(ranking, gap, floor, s, spectral=floor)
+    assert verdict is None
+    assert "110 x the noise floor" in rule["reason"]
+    assert "closes 0.25 of it" in rule["reason"]
+    assert "(coulomb m1-ground, closure 0.05, against 0.25)" in rule["reason"]
+    assert "fits the validation records to the noise level" not in rule["reason"]
+    _, rule = decide([_fitted("clearance", 3e-5, 1e-5)], 3e-5, floor, s, spectral=floor)
+    assert "fits the validation records to the noise level (gap 3e-05, 1.4 x" \
+        in rule["reason"]
 
 
 def test_a_faint_cubic_spring_is_named_with_the_pulse_reading_as_a_nuisance():

@@ -2,6 +2,7 @@
 closes a gap that is above the noise."""
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -194,13 +195,38 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
         top.rivals = list(rule["rivals"])
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
-    reasons = {"above_noise": "the nominal model already fits the validation records to "
-                              f"the noise level, or within {settings.gap_min:g} NMSE, below "
-                              f"{settings.faint_noise:g} x the noise floor, and no "
-                              f"candidate closes {settings.faint_closure:.0%} of that",
-               "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
-                          "of the validation gap (and of its part above the noise floor)",
-               "separation": "a candidate of another kind explains the gap about as well",
-               "consistent": "the best candidate makes a validation record worse"}
-    rule["reason"] = "; ".join(reasons[k] for k in failed)
+    rule["reason"] = "; ".join(_reasons(top, rival, gap_before, noise_floor, floor,
+                                        settings)[k] for k in failed)
     return None, rule
+
+
+def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
+             noise_floor: float | None, floor: float | None, settings: DiagnoseSettings
+             ) -> dict[str, str]:
+    """Why a check failed, with the numbers it compared: a gap many times the noise
+    floor that is refused for being under ``gap_min`` must not read as "at the noise
+    level" (fresh seed 17227: a gap of 0.0024, 110 x the floor, refused because the
+    best candidate closed 0.25 of it)."""
+    ratio = gap_before / noise_floor if noise_floor is not None and noise_floor > 0 \
+        else math.inf
+    if noise_floor is not None and not gap_before > settings.noise_factor * noise_floor:
+        size = (f"the nominal model already fits the validation records to the noise "
+                f"level (gap {gap_before:.3g}, {ratio:.1f} x the noise floor, at most "
+                f"{settings.noise_factor:g} x)")
+    else:
+        times = f" ({ratio:.0f} x the noise floor)" if math.isfinite(ratio) else ""
+        size = (f"the validation gap {gap_before:.3g}{times} is "
+                f"below {settings.gap_min:g} NMSE and the best candidate closes "
+                f"{top.closure:.2f} of it: such a gap counts when a candidate closes "
+                f"{settings.faint_closure:.0%} of it, or {settings.closure_min:.0%} when "
+                f"it is at least {settings.faint_noise:g} x the noise floor")
+    excess = "" if floor is None or not gap_before > floor else \
+        f", {(gap_before - top.gap_after) / (gap_before - floor):.2f} of its part above " \
+        "the noise floor"
+    return {"above_noise": size,
+            "closure": f"the best candidate ({top.label()}) closes {top.closure:.2f} of "
+                       f"the validation gap{excess}: less than {settings.closure_min:.0%}",
+            "separation": "a candidate of another kind explains the gap about as well"
+                          + (f" ({rival.label()}, closure {rival.closure:.2f}, against "
+                             f"{top.closure:.2f})" if rival is not None else ""),
+            "consistent": "the best candidate makes a validation record worse"}
