@@ -54,6 +54,11 @@ def test_a_gap_far_above_the_noise_is_not_reported_as_noise():
     _, rule = decide([_fitted("clearance", 3e-5, 1e-5)], 3e-5, floor, s, spectral=floor)
     assert "fits the validation records to the noise level (gap 3e-05, 1.4 x" \
         in rule["reason"]
+    # 17230's numbers: 0.61 of the part above the floor, but only 0.5 x the floor removed
+    gap, floor = 0.003956, 0.002164
+    _, rule = decide([_fitted("spring", gap, 0.00286)], gap, floor, s, spectral=floor)
+    assert "0.61 of its part above the noise floor (removing 0.0011, 0.5 x the floor" \
+        in rule["reason"]
 
 
 def test_a_faint_cubic_spring_is_named_with_the_pulse_reading_as_a_nuisance():

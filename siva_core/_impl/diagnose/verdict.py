@@ -220,9 +220,13 @@ def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
                 f"{top.closure:.2f} of it: such a gap counts when a candidate closes "
                 f"{settings.faint_closure:.0%} of it, or {settings.closure_min:.0%} when "
                 f"it is at least {settings.faint_noise:g} x the noise floor")
-    excess = "" if floor is None or not gap_before > floor else \
-        f", {(gap_before - top.gap_after) / (gap_before - floor):.2f} of its part above " \
-        "the noise floor"
+    excess = ""
+    if floor is not None and gap_before > floor:
+        removed = gap_before - top.gap_after
+        excess = (f", {removed / (gap_before - floor):.2f} of its part above the noise "
+                  f"floor (removing {removed:.3g}, "
+                  f"{removed / floor if floor > 0 else math.inf:.1f} x the floor; "
+                  f"that part counts when more than {settings.noise_factor:g} x)")
     return {"above_noise": size,
             "closure": f"the best candidate ({top.label()}) closes {top.closure:.2f} of "
                        f"the validation gap{excess}: less than {settings.closure_min:.0%}",
