@@ -173,10 +173,20 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                                 settings)
     if excess and not top.closure >= settings.closure_min:
         rule["closes_above_noise"] = True
+    # a gap under gap_min counts when the candidate closes faint_closure of its part
+    # above the noise floor (a right model leaves the noise), removing more than
+    # noise_factor x the floor (branch absorbed: chain3 damper m1-m3 small, gap 0.000845
+    # at 9.7 x the floor, the right damper closed 0.74 of it, 0.82 of the part above)
+    faint_excess = closes_above_noise(gap_before, top.gap_after, floor,
+                                      settings.faint_closure, settings)
+    if faint_excess and not (gap_before > settings.gap_min
+                             or top.closure >= settings.faint_closure):
+        rule["faint_above_noise"] = True
     checks = {
         # a gap below gap_min counts only when the candidate closes most of it (faint)
         "above_noise": bool((later or gap_before > settings.gap_min
                              or top.closure >= settings.faint_closure or sensor
+                             or faint_excess
                              or (noise_floor is not None and noise_floor > 0
                                  and gap_before >= settings.faint_noise * noise_floor
                                  and top.closure >= settings.closure_min)) and (
@@ -214,12 +224,14 @@ def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
                 f"level (gap {gap_before:.3g}, {ratio:.1f} x the noise floor, at most "
                 f"{settings.noise_factor:g} x)")
     else:
-        times = f" ({ratio:.0f} x the noise floor)" if math.isfinite(ratio) else ""
+        times = f" ({ratio:.1f} x the noise floor)" if math.isfinite(ratio) else ""
         size = (f"the validation gap {gap_before:.3g}{times} is "
                 f"below {settings.gap_min:g} NMSE and the best candidate closes "
                 f"{top.closure:.2f} of it: such a gap counts when a candidate closes "
-                f"{settings.faint_closure:.0%} of it, or {settings.closure_min:.0%} when "
-                f"it is at least {settings.faint_noise:g} x the noise floor")
+                f"{settings.faint_closure:.0%} of it or of its part above the noise floor "
+                f"(removing more than {settings.noise_factor:g} x the floor), or "
+                f"{settings.closure_min:.0%} of it when it is at least "
+                f"{settings.faint_noise:g} x the floor")
     excess = ""
     if floor is not None and gap_before > floor:
         removed = gap_before - top.gap_after
