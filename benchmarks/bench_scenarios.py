@@ -4,7 +4,9 @@
 A case is *complete* when the named effects are exactly the expected ones (kind and place,
 or fault and channel; nothing missing, nothing more).  Rates are reported per category
 (null, single, two effects) and for the faint effects (visibility < 5 x the noise) and
-those at >= 5 x.  A force gain (or a 1-DOF model's accelerometer gain) that the hammer
+those at >= 5 x; and the same two classes by the visibility *after the nominal refit*
+(``visibility_after.py``: what the refitted nominal model cannot absorb, i.e. what the
+records can identify; a missing spring or a coulomb is largely absorbed by the refit).  A force gain (or a 1-DOF model's accelerometer gain) that the hammer
 pulse's reading explains -- the generator's truth, ``pulse_truth.py``: a fault-free hammer
 with another half-sine through the same samples gives the same records -- is counted as
 its own class, "gain within the pulse reading", beside the strict count (never instead).
@@ -16,7 +18,8 @@ Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [-
 (``--force-reading linear``: the records driven as before issue 16's fifth round, to
 reproduce the batches reported up to 15000-15159; the default drives them with the
 continuous hammer pulse, ``scenarios.FORCE_READINGS``)
-(``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs).
+(``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs;
+``--add-after a.json`` fills the visibility after the nominal refit into saved runs).
 Seeds used for development are listed in docs/diagnosis.md; a reported rate must come from
 seeds never run before the rules were frozen.
 """
@@ -39,6 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from siva_core import diagnose  # noqa: E402
 
 import scenarios  # noqa: E402
+import visibility_after  # noqa: E402
 
 
 class CaseTimeout(BaseException):  # not swallowed by the diagnosis's per-candidate guards
@@ -109,6 +113,7 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "expected": exp, "named": got, "complete": got == exp,
             "missing": [e for e in exp if e not in got], "extra": [g for g in got if g not in exp],
             "visibility": sc.visibility, "size_ratio": sizes,
+            **_after(sc),
             "rivals": out.get("rivals", []),
             "gap_before": out["nominal"]["gap"], "reason": out["rule"].get("reason"),
             # the sensor fault was named on the gap above the noise (verdict.sensor_above_noise)
@@ -120,6 +125,35 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "dofs": sc.info["dofs"], "samples": len(sc.train[0].time),
             "force_reading": sc.info["force_reading"],
             "timing_s": out.get("timing_s", {})}
+
+
+def _after(sc: scenarios.Scenario) -> dict[str, list[float]]:
+    """Each effect's visibility after the nominal refit on the validation records
+    (``visibility_after``) and on the train records (``visibility_after_train``), measured
+    after the case's clock (not part of its time)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        val, train = visibility_after.after(sc)
+    return {"visibility_after": val, "visibility_after_train": train}
+
+
+def add_after(files: list[str]) -> None:
+    """Fill ``visibility_after`` into saved runs that lack it (the scenario is redrawn
+    from its seed; nothing is diagnosed)."""
+    for f in files:
+        rows = json.loads(Path(f).read_text())
+        for r in rows:
+            if "visibility_after_train" not in r and r.get("force_reading", "continuous") \
+                    in scenarios.FORCE_READINGS and r["category"] != "error":
+                r.update(_after(scenarios.draw(r["seed"],
+                                               r.get("force_reading", "continuous"))))
+        Path(f).write_text(json.dumps(rows, indent=2, default=float) + "\n")
+
+
+def _vis(r: dict[str, Any], key: str) -> list[float] | None:
+    """A row's visibilities (``key``), None when the row has none measured."""
+    v = r.get(key)
+    return None if v is None else [float(x) for x in v]
 
 
 def summarise(rows: list[dict[str, Any]]) -> None:
@@ -139,6 +173,17 @@ def summarise(rows: list[dict[str, Any]]) -> None:
     print(f"  false verdicts on nulls: {false} of {len(nulls)}")
     print(f"  effects all >= 5 x noise (or sensor only): complete {rate(strong)}; "
           f"with an effect < 5 x noise: {rate(faint)}")
+    # the same classes by the visibility after the nominal refit (visibility_after.py):
+    # what the refitted nominal model leaves, i.e. what the records can identify
+    measured = [r for r in effect_rows if _vis(r, "visibility_after") is not None]
+    if measured:
+        strong_a = [r for r in measured if not r["visibility_after"]
+                    or min(r["visibility_after"]) >= 5.0]
+        faint_a = [r for r in measured if r["visibility_after"]
+                   and not min(r["visibility_after"]) >= 5.0]
+        print(f"  effects all >= 5 x noise after the nominal refit (or sensor only): "
+              f"complete {rate(strong_a)}; with an effect < 5 x after it (or unmeasured): "
+              f"{rate(faint_a)}")
     within = [r for r in rows if (r.get("gain_reading") or {}).get("within")]
     if within:
         said = sum(bool(r.get("reading_limit")) for r in within)
@@ -161,8 +206,14 @@ def summarise(rows: list[dict[str, Any]]) -> None:
     for r in rows:
         if not r["complete"]:
             tag = " [gain within the pulse reading]" if r.get("rest_complete") else ""
+            after, on_train = _vis(r, "visibility_after"), _vis(r, "visibility_after_train")
+            shown = "" if after is None else \
+                f", after the nominal refit {[round(v, 1) for v in after]}" + (
+                    "" if on_train is None else
+                    f" (train {[round(v, 1) for v in on_train]})")
             print(f"  miss seed {r['seed']}{tag}: expected {r['expected']} named {r['named']} "
-                  f"(visibility {[round(v, 1) for v in r['visibility']]}; {r['reason']})")
+                  f"(visibility {[round(v, 1) for v in r['visibility']]}{shown}; "
+                  f"{r['reason']})")
 
 
 def main() -> int:
@@ -171,6 +222,9 @@ def main() -> int:
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--summarise", metavar="FILES")
+    ap.add_argument("--add-after", metavar="FILES",
+                    help="fill the visibility after the nominal refit into saved runs "
+                         "(comma-separated JSON files, rewritten; nothing is diagnosed)")
     ap.add_argument("--force-reading", choices=scenarios.FORCE_READINGS,
                     default="continuous",
                     help="how the hammer drives the records: the continuous pulse (default) "
@@ -183,6 +237,10 @@ def main() -> int:
                          "shared machine, where wall time depends on the others' load); a case "
                          "over it counts as wrong")
     args = ap.parse_args()
+    if args.add_after:
+        add_after(args.add_after.split(","))
+        if not args.summarise:
+            return 0
     if args.summarise:
         rows = [r for f in args.summarise.split(",") for r in json.loads(Path(f).read_text())]
         summarise(rows)
@@ -208,6 +266,7 @@ def main() -> int:
                    "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
                    "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
                    "visibility": sc.visibility if sc else [],
+                   **(_after(sc) if sc else {}),
                    "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "load1": os.getloadavg()[0], "reason": str(exc)}
         rows.append(row)
         print(f"  -> {'OK ' if row['complete'] else 'NO '} named {row['named']} "

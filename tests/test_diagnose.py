@@ -156,10 +156,16 @@ def test_verdict_when_every_check_passes():
 
 
 def test_no_verdict_at_the_noise_level_or_below_the_relevance_floor():
-    # below gap_min a candidate must close faint_closure (0.8) of the gap to be named,
-    # unless the gap is faint_noise (10) x the noise floor (judged against the noise)
+    # below gap_min a candidate must close faint_closure (0.8) of the gap, or of its part
+    # above the noise floor removing more than noise_factor x the floor (branch absorbed),
+    # to be named, unless the gap is faint_noise (10) x the noise floor
+    ranking = [_cand("coulomb", ("NO", "ground"), 0.5, gap_before=0.004)]
+    verdict, rule = decide(ranking, 0.004, 1e-3, DiagnoseSettings())  # 0.67 of the excess
+    assert verdict is None and not rule["checks"]["above_noise"]
     ranking = [_cand("coulomb", ("NO", "ground"), 0.7, gap_before=0.004)]
-    verdict, rule = decide(ranking, 0.004, 1e-3, DiagnoseSettings())
+    verdict, rule = decide(ranking, 0.004, 1e-3, DiagnoseSettings())  # 0.93, 2.8 x
+    assert verdict is ranking[0] and rule.get("faint_above_noise")
+    verdict, rule = decide(ranking, 0.004, 1.5e-3, DiagnoseSettings())  # 1.9 x removed
     assert verdict is None and not rule["checks"]["above_noise"]
     verdict, rule = decide(ranking, 0.004, 1e-4, DiagnoseSettings())
     assert verdict is ranking[0] and rule["checks"]["above_noise"]

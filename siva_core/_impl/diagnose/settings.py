@@ -36,7 +36,11 @@ class DiagnoseSettings:
         (measured: 46 % of a 0.0009 null gap) ...
     faint_closure: ... unless the best candidate closes at least this share of it (a faint
         effect, well above the noise, that one law explains on the held-out records;
-        measured: a small softening spring LO-ground, gap 0.0045, closure 0.96).
+        measured: a small softening spring LO-ground, gap 0.0045, closure 0.96), or this
+        share of its part above the noise floor, removing more than ``noise_factor`` x the
+        floor (``verdict.closes_above_noise``: a right model leaves the noise; branch
+        absorbed, the 3-DOF chain's small damper m1-m3: gap 0.000845 at 9.7 x the floor,
+        the right damper closed 0.74 of it and 0.82 of the part above the floor).
     faint_noise: ... or the gap is at least this multiple of the spectral noise floor and
         the best candidate closes ``closure_min`` of it (a faint effect judged against the
         noise, not a fixed floor; issue 16: a quadratic damper 4-8 x the noise RMS closing

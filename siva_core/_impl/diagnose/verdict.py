@@ -2,6 +2,7 @@
 closes a gap that is above the noise."""
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -172,10 +173,20 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
                                 settings)
     if excess and not top.closure >= settings.closure_min:
         rule["closes_above_noise"] = True
+    # a gap under gap_min counts when the candidate closes faint_closure of its part
+    # above the noise floor (a right model leaves the noise), removing more than
+    # noise_factor x the floor (branch absorbed: chain3 damper m1-m3 small, gap 0.000845
+    # at 9.7 x the floor, the right damper closed 0.74 of it, 0.82 of the part above)
+    faint_excess = closes_above_noise(gap_before, top.gap_after, floor,
+                                      settings.faint_closure, settings)
+    if faint_excess and not (gap_before > settings.gap_min
+                             or top.closure >= settings.faint_closure):
+        rule["faint_above_noise"] = True
     checks = {
         # a gap below gap_min counts only when the candidate closes most of it (faint)
         "above_noise": bool((later or gap_before > settings.gap_min
                              or top.closure >= settings.faint_closure or sensor
+                             or faint_excess
                              or (noise_floor is not None and noise_floor > 0
                                  and gap_before >= settings.faint_noise * noise_floor
                                  and top.closure >= settings.closure_min)) and (
@@ -194,13 +205,44 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
         top.rivals = list(rule["rivals"])
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
-    reasons = {"above_noise": "the nominal model already fits the validation records to "
-                              f"the noise level, or within {settings.gap_min:g} NMSE, below "
-                              f"{settings.faint_noise:g} x the noise floor, and no "
-                              f"candidate closes {settings.faint_closure:.0%} of that",
-               "closure": f"the best candidate closes less than {settings.closure_min:.0%} "
-                          "of the validation gap (and of its part above the noise floor)",
-               "separation": "a candidate of another kind explains the gap about as well",
-               "consistent": "the best candidate makes a validation record worse"}
-    rule["reason"] = "; ".join(reasons[k] for k in failed)
+    rule["reason"] = "; ".join(_reasons(top, rival, gap_before, noise_floor, floor,
+                                        settings)[k] for k in failed)
     return None, rule
+
+
+def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
+             noise_floor: float | None, floor: float | None, settings: DiagnoseSettings
+             ) -> dict[str, str]:
+    """Why a check failed, with the numbers it compared: a gap many times the noise
+    floor that is refused for being under ``gap_min`` must not read as "at the noise
+    level" (fresh seed 17227: a gap of 0.0024, 110 x the floor, refused because the
+    best candidate closed 0.25 of it)."""
+    ratio = gap_before / noise_floor if noise_floor is not None and noise_floor > 0 \
+        else math.inf
+    if noise_floor is not None and not gap_before > settings.noise_factor * noise_floor:
+        size = (f"the nominal model already fits the validation records to the noise "
+                f"level (gap {gap_before:.3g}, {ratio:.1f} x the noise floor, at most "
+                f"{settings.noise_factor:g} x)")
+    else:
+        times = f" ({ratio:.1f} x the noise floor)" if math.isfinite(ratio) else ""
+        size = (f"the validation gap {gap_before:.3g}{times} is "
+                f"below {settings.gap_min:g} NMSE and the best candidate closes "
+                f"{top.closure:.2f} of it: such a gap counts when a candidate closes "
+                f"{settings.faint_closure:.0%} of it or of its part above the noise floor "
+                f"(removing more than {settings.noise_factor:g} x the floor), or "
+                f"{settings.closure_min:.0%} of it when it is at least "
+                f"{settings.faint_noise:g} x the floor")
+    excess = ""
+    if floor is not None and gap_before > floor:
+        removed = gap_before - top.gap_after
+        excess = (f", {removed / (gap_before - floor):.2f} of its part above the noise "
+                  f"floor (removing {removed:.3g}, "
+                  f"{removed / floor if floor > 0 else math.inf:.1f} x the floor; "
+                  f"that part counts when more than {settings.noise_factor:g} x)")
+    return {"above_noise": size,
+            "closure": f"the best candidate ({top.label()}) closes {top.closure:.2f} of "
+                       f"the validation gap{excess}: less than {settings.closure_min:.0%}",
+            "separation": "a candidate of another kind explains the gap about as well"
+                          + (f" ({rival.label()}, closure {rival.closure:.2f}, against "
+                             f"{top.closure:.2f})" if rival is not None else ""),
+            "consistent": "the best candidate makes a validation record worse"}
