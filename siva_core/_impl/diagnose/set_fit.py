@@ -13,7 +13,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .early_stop import StopRule, cannot_win
 from .fitting import _intervals
-from .outputs import Progress
+from .outputs import Progress, _Outputs
 from .results import Candidate
 from .scoring import judge
 from .settings import FAST, DiagnoseSettings
@@ -33,6 +33,51 @@ class SetFit(Candidate):
 
     def label(self) -> str:
         return " + ".join(m.label() for m in self.members)
+
+
+def member_coefficients(s: Candidate) -> list[dict[str, float]]:
+    """Each structural member's coefficients in the set's joint fit (by its parameter
+    names: the first member's names survive in the augmented model)."""
+    if not isinstance(s, SetFit) or s.structure is None or s.theta is None:
+        return [dict(s.coefficients)]
+    vals = s.structure.as_dict(s.theta)
+    out = []
+    for m in s.members:
+        if m.category == "sensor":
+            out.append(dict(m.coefficients))
+        else:
+            out.append({k: vals[p] for k, p in m.names.items() if p in vals})
+    return out
+
+
+def contributions(s: Candidate, val: Sequence[Recording], proc: Processing) -> list[float]:
+    """Each structural member's own contribution to the simulated validation outputs, in
+    the gap's units (NMSE): the squared output change when its magnitude is set to zero,
+    the rest of the fit held.  Sensor members: the change of the records their
+    correction makes, the same way (nominal outputs held)."""
+    if s.structure is None or s.theta is None:
+        return []
+    members = s.members if isinstance(s, SetFit) else [s]
+    outs = _Outputs(s.structure, s.correct(val), proc, s.theta)
+    r0 = outs.residuals(s.theta)[0]
+    result = []
+    for m in members:
+        if m.category == "sensor":
+            raw = _Outputs(s.structure, val, proc, s.theta).residuals(s.theta)[0]
+            result.append(float((raw - r0) @ (raw - r0)) if raw.shape == r0.shape
+                          else math.inf)
+            continue
+        names = m.names if isinstance(s, SetFit) else s.names
+        p = names.get(m.effect.magnitude)
+        if p is None or p not in s.structure.free:
+            result.append(math.inf)
+            continue
+        th = np.array(s.theta, float)
+        th[s.structure.free.index(p)] = 0.0
+        r1 = outs.residuals(th)[0]
+        d = r1 - r0
+        result.append(float(d @ d) if np.all(np.isfinite(d)) else math.inf)
+    return result
 
 
 def _refit(aug: Structure, starts: Sequence[np.ndarray], train: Sequence[Recording],

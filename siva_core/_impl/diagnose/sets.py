@@ -25,60 +25,16 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .grow import grow_sets, joiners, partners, refit_from_lead, second_leads
-from .outputs import Progress, _Outputs, _say
+from .outputs import Progress, _say
 from .pair_fit import best_known, fit_pair
 from .parallel import run_each, worker_count
 from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
-from .set_fit import SetFit, refit_stopped
+from .set_fit import SetFit, contributions, member_coefficients, refit_stopped
+from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
-
-
-def member_coefficients(s: Candidate) -> list[dict[str, float]]:
-    """Each structural member's coefficients in the set's joint fit (by its parameter
-    names: the first member's names survive in the augmented model)."""
-    if not isinstance(s, SetFit) or s.structure is None or s.theta is None:
-        return [dict(s.coefficients)]
-    vals = s.structure.as_dict(s.theta)
-    out = []
-    for m in s.members:
-        if m.category == "sensor":
-            out.append(dict(m.coefficients))
-        else:
-            out.append({k: vals[p] for k, p in m.names.items() if p in vals})
-    return out
-
-
-def contributions(s: Candidate, val: Sequence[Recording], proc: Processing) -> list[float]:
-    """Each structural member's own contribution to the simulated validation outputs, in
-    the gap's units (NMSE): the squared output change when its magnitude is set to zero,
-    the rest of the fit held.  Sensor members: the change of the records their
-    correction makes, the same way (nominal outputs held)."""
-    if s.structure is None or s.theta is None:
-        return []
-    members = s.members if isinstance(s, SetFit) else [s]
-    outs = _Outputs(s.structure, s.correct(val), proc, s.theta)
-    r0 = outs.residuals(s.theta)[0]
-    result = []
-    for m in members:
-        if m.category == "sensor":
-            raw = _Outputs(s.structure, val, proc, s.theta).residuals(s.theta)[0]
-            result.append(float((raw - r0) @ (raw - r0)) if raw.shape == r0.shape
-                          else math.inf)
-            continue
-        names = m.names if isinstance(s, SetFit) else s.names
-        p = names.get(m.effect.magnitude)
-        if p is None or p not in s.structure.free:
-            result.append(math.inf)
-            continue
-        th = np.array(s.theta, float)
-        th[s.structure.free.index(p)] = 0.0
-        r1 = outs.residuals(th)[0]
-        d = r1 - r0
-        result.append(float(d @ d) if np.all(np.isfinite(d)) else math.inf)
-    return result
 
 
 def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: int = 3
@@ -274,6 +230,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                if np.isfinite(o.gap_after)}
     cur_gap = verdict.gap_after if verdict is not None else gap_before
     chosen: SetFit | None = None
+    chosen_without: list[float] = []
     chosen_nuisance: list[Candidate] = []
     tried = []
     for s in sorted(options, key=lambda s: s.gap_after if np.isfinite(s.gap_after)
@@ -322,7 +279,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             if low:
                 tried[-1]["checks"]["above_noise_each"] = False
                 continue
-            chosen = s
+            chosen, chosen_without = s, without
             if nuisance is not None:
                 chosen_nuisance = [m for m, r in zip(s.members, reading) if r]
             for m, x, w in zip(s.members, contrib, without):
@@ -331,8 +288,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                     else math.nan
             break
     rule["sets"] = tried
+    member_rivals: list[list[dict[str, object]]] = []
+    if chosen is not None and len(chosen.members) > 1:
+        chosen, member_rivals = swap_members(
+            chosen, chosen_without, structure, train, val, proc, gap_before, before_blocks,
+            noise, settings, [*ranking, *scanned], rule, progress)
     if chosen is not None:
         named = list(chosen.members)
+        for m, rv in zip(named, member_rivals):
+            known = {r["candidate"] for r in m.rivals}
+            m.rivals = [*m.rivals, *(r for r in rv if r["candidate"] not in known)]
         for k, (m, coeffs) in enumerate(zip(named, member_coefficients(chosen))):
             if m.category == "structure" and coeffs:
                 m.coefficients = coeffs
@@ -355,6 +320,10 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                               "hammer pulse's reading, a nuisance, not named) closes "
                               f"{chosen.closure:.3f} of the gap; each effect is needed "
                               "and shows above the noise")
+        cannot = [f"{m.label()} from {', '.join(r['candidate'] for r in rv)}"
+                  for m, rv in zip(chosen.members, member_rivals) if rv]
+        if cannot:
+            rule["reason"] = f"{rule['reason']}; the data cannot separate {'; '.join(cannot)}"
         _say(progress, f"set: {chosen.label()} closes {chosen.closure:.3f}")
         return named[0], named, rule
     if verdict is not None:
