@@ -20,6 +20,7 @@ floor of it as that member's rivals (the data cannot separate them).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 from typing import Any, Callable, Sequence
 
@@ -221,21 +222,31 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     without it (the others' single gaps, as the set was judged)."""
     from .verdict import _consistent
 
+    t0 = time.perf_counter()
     swaps = member_swaps(chosen, structure, train, val, proc, gap_before, before_blocks,
                          settings, known, progress)
+    rule["swap_s"] = time.perf_counter() - t0  # CPU share of the swaps (must-show 3)
     if not swaps:
         return chosen, []
-    rule["swaps"] = [{"set": s.label(), "closure": float(s.closure),
-                      "stopped": bool(s.stopped)} for _, s in swaps]
+    tried: list[dict[str, Any]] = [{"set": s.label(), "closure": float(s.closure),
+                                    "stopped": bool(s.stopped)} for _, s in swaps]
+    rule["swaps"] = tried
     contrib: dict[int, list[float]] = {}
 
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
         low = noise is not None and any(not x > settings.contribution_noise * noise
                                         for x in contrib[id(s)])
-        if low or not _consistent(s, settings.record_tolerance):
-            _say(progress, f"swap {s.label()}: refused (a record worse, or a member "
-                           "below the noise)")
+        consistent = _consistent(s, settings.record_tolerance)
+        entry = next((e for e in tried if e["set"] == s.label()), {})
+        entry.update({"contributions": [float(x) for x in contrib[id(s)]],
+                      "consistent": bool(consistent)})
+        if low or not consistent:
+            _say(progress, f"swap {s.label()}: refused ("
+                           + ("a record worse" if not consistent else "contributions "
+                              + ", ".join(f"{x:.3g}" for x in contrib[id(s)])
+                              + f" against {settings.contribution_noise:g} x the floor "
+                              f"{noise:.3g}") + ")")
             return False
         return True
 
