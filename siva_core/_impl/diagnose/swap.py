@@ -77,8 +77,9 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
     on the validation records) for every structural member of ``chosen`` and its
     ``swap_kinds`` most promising look-alike kinds (module doc).  ``known``: fitted and
     screened singles, for the look-alikes' shape coefficients."""
-    if settings.swap_kinds < 1 or chosen.structure is None or chosen.theta is None \
-            or not np.isfinite(chosen.train_cost):
+    # (a greedy set whose last stage named a sensor fault carries no train cost: its
+    # swaps are then fitted without the early stop)
+    if settings.swap_kinds < 1 or chosen.structure is None or chosen.theta is None:
         return []
     vals = chosen.structure.as_dict(chosen.theta)
     coeffs = member_coefficients(chosen)
