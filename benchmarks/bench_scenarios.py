@@ -114,7 +114,10 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "missing": [e for e in exp if e not in got], "extra": [g for g in got if g not in exp],
             "visibility": sc.visibility, "size_ratio": sizes,
             **_after(sc),
-            "rivals": out.get("rivals", []),
+            # the look-alikes the data cannot separate, per named effect (the verdict
+            # entries' ``rivals``; the top-level key never existed)
+            "rivals": {_label(v["kind"], v["between"]): [r["candidate"] for r in v["rivals"]]
+                       for v in out["verdicts"] if v.get("rivals")},
             "gap_before": out["nominal"]["gap"], "reason": out["rule"].get("reason"),
             # the sensor fault was named on the gap above the noise (verdict.sensor_above_noise)
             "sensor_above_noise": bool(out["rule"].get("sensor_above_noise")),

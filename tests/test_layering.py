@@ -69,6 +69,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.ensemble": "dropping a diverged epoch",
         "siva_core._impl.siva": "moving candidates inside the bounds",
         "siva_core._impl.refine": "every candidate diverging"},
+    "tests/test_diagnose_swap.py": {"siva_core._impl.diagnose": "look-alike swaps in a set"},
     "tests/test_diagnose_faint.py": {
         "siva_core._impl.diagnose.verdict": "the size check on the gap above the noise",
         "siva_core._impl.diagnose.results": "candidates built with a seed's numbers"},

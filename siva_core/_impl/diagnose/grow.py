@@ -158,51 +158,23 @@ def law_swap(c: Candidate, lead: Candidate, train: Sequence[Recording],
     single fit can stall near zero (measured: a quadratic damper m3-ground beside a linear
     one, c2 = 1.2e-5, at the nominal's train cost) where the lead's force, expressed in
     its law, is a start near the truth."""
-    from .outputs import _Outputs, _relative
+    from .law_match import matched_magnitudes, motion_points, place_motion
 
     if (c.structure is None or c.theta is None or not c.names or lead.structure is None
             or lead.theta is None):
         return []
-    mag_lead = lead.coefficients.get(lead.effect.magnitude)
-    if mag_lead is None or not np.isfinite(mag_lead) or mag_lead == 0:
-        return []
-    shape_lead = {k: v for k, v in lead.coefficients.items() if k != lead.effect.magnitude}
-    shape_c = {k: v for k, v in c.coefficients.items() if k != c.effect.magnitude}
-    mags = []
     try:  # the lead's own motion at its place, on the train records
-        outs = _Outputs(lead.structure, list(train), proc, lead.theta)
-        ds, vs = [], []
-        for k in range(len(outs.records)):
-            _, sim = outs.signals(lead.theta, k)
-            d, v = _relative(np.asarray(sim.q), np.asarray(sim.v), lead.loc)
-            ds.append(np.ravel(d))
-            vs.append(np.ravel(v))
-        d, v = np.concatenate(ds), np.concatenate(vs)
-        f_lead = mag_lead * np.asarray(lead.effect.unit_force(d, v, shape_lead), float)
-        u = np.asarray(c.effect.unit_force(d, v, shape_c), float)
-        uu = float(u @ u)
-        if np.all(np.isfinite(f_lead)) and np.all(np.isfinite(u)) and uu > 0:
-            mags.append(float(f_lead @ u) / uu)
-        pts = [(float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(v ** 2)))),
-               (float(np.max(np.abs(d))), float(np.max(np.abs(v))))]
+        d, v = place_motion(lead.structure, lead.theta, lead.loc, train, proc)
+        pts = motion_points(d, v)
     except Exception:  # noqa: BLE001 - the amplitudes alone
+        d = v = None
         amp = c.amplitudes or lead.amplitudes
         pts = [] if amp is None else [(amp.d_rms, amp.v_rms), (amp.d_max, amp.v_max)]
-    for dd, vv in pts:
-        try:
-            fl = float(np.abs(lead.effect.unit_force(np.array(dd), np.array(vv), shape_lead)))
-            fc = float(np.abs(c.effect.unit_force(np.array(dd), np.array(vv), shape_c)))
-        except (KeyError, ValueError, TypeError):
-            continue
-        if fl > 0 and fc > 0 and np.isfinite(fl) and np.isfinite(fc):
-            mags.append(abs(mag_lead) * fl / fc * (-1.0 if mag_lead < 0 else 1.0))
+    mags = matched_magnitudes(lead.effect, lead.coefficients, c.effect, c.coefficients,
+                              d, v, pts)
     base = {**c.structure.as_dict(c.theta), **dict(lead.parameters or {})}
     out = []
     for mag in mags:
-        if c.effect.magnitude in c.effect.positive:
-            mag = abs(mag)
-        if not np.isfinite(mag) or mag == 0:
-            continue
         try:
             out.append(c.structure.vector({**base, c.names[c.effect.magnitude]: mag}))
         except (KeyError, ValueError):

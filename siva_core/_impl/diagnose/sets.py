@@ -34,6 +34,7 @@ from .scoring import judge
 from .set_fit import SetFit, refit_stopped
 from .set_members import contributions, member_coefficients
 from .set_test import BlockTest, without_fits
+from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
 
@@ -251,6 +252,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                    if np.isfinite(o.gap_after)}
     tester = BlockTest(val, proc, settings.test_blocks)
     chosen: SetFit | None = None
+    chosen_without: list[float] = []
     chosen_nuisance: list[Candidate] = []
     tried = []
     for s in sorted(options, key=lambda s: s.gap_after if np.isfinite(s.gap_after)
@@ -312,7 +314,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             if low:
                 tried[-1]["checks"]["above_noise_each"] = False
                 continue
-            chosen = s
+            chosen, chosen_without = s, without
             if nuisance is not None:
                 chosen_nuisance = [m for m, r in zip(s.members, reading) if r]
             for m, x, w in zip(s.members, contrib, without):
@@ -321,8 +323,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                     else math.nan
             break
     rule["sets"] = tried
+    member_rivals: list[list[dict[str, object]]] = []
+    if chosen is not None and len(chosen.members) > 1:
+        chosen, member_rivals = swap_members(
+            chosen, chosen_without, structure, train, val, proc, gap_before, before_blocks,
+            noise, settings, [*ranking, *scanned], rule, progress)
     if chosen is not None:
         named = list(chosen.members)
+        for m, rv in zip(named, member_rivals):
+            known = {r["candidate"] for r in m.rivals}
+            m.rivals = [*m.rivals, *(r for r in rv if r["candidate"] not in known)]
         for k, (m, coeffs) in enumerate(zip(named, member_coefficients(chosen))):
             if m.category == "structure" and coeffs:
                 m.coefficients = coeffs
@@ -345,6 +355,10 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                               "hammer pulse's reading, a nuisance, not named) closes "
                               f"{chosen.closure:.3f} of the gap; each effect is needed "
                               "and shows above the noise")
+        cannot = [f"{m.label()} from {', '.join(r['candidate'] for r in rv)}"
+                  for m, rv in zip(chosen.members, member_rivals) if rv]
+        if cannot:
+            rule["reason"] = f"{rule['reason']}; the data cannot separate {'; '.join(cannot)}"
         _say(progress, f"set: {chosen.label()} closes {chosen.closure:.3f}")
         return named[0], named, rule
     if verdict is not None:

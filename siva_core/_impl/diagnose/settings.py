@@ -139,6 +139,23 @@ class DiagnoseSettings:
         there is none scores < 0, one moving nothing ~1 (tests/test_diagnose_set_test);
         fresh seed 17241's 7 % accelerometer gain 12.8; invented members on the dev null
         24332 up to 2.33, 17266's spurious force gain 2.22 (thin below 3).
+    swap_kinds: once a set is chosen, each structural member's law is swapped for its
+        look-alike kinds at its place and the set re-fitted jointly from its own fit
+        (``swap.member_swaps``); only this many kinds per member, the best by the train
+        cost of their starts, are refined (CPU: one joint refine each; the fits' starts
+        already rank the right law first or second).  0 = off.  A member found in a
+        later stage never had its look-alikes compared with the other member present
+        (fresh seed 17240: a cubic damper m1-m2 named beside a quadratic damper
+        m2-ground for two quadratic dampers).
+        The set with the lowest validation gap among the chosen one and its swaps (each
+        consistent and every member above the noise, as the set was judged) is named, as
+        the single verdict names the best of its look-alikes ...
+    swap_noise: ... and the laws whose set's gap is within this multiple of the spectral
+        noise floor of the named set's are listed as that member's rivals: the data cannot
+        separate them (``swap.swap_rivals``).  The floor is the gap a right model leaves:
+        a difference below it is within what the noise and the nominal parameters'
+        extrapolation move (17240: the quadratic damper m1-m2's set 0.00864, the cubic's
+        0.01018, floor 0.00518).
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
@@ -193,3 +210,5 @@ class DiagnoseSettings:
     lookalike_pairs: int = 6
     test_blocks: int = 8
     test_z: float = 3.0
+    swap_kinds: int = 2
+    swap_noise: float = 1.0
