@@ -137,7 +137,7 @@ def test_a_set_at_the_noise_level_needs_one_noise_floor_per_member():
 
 
 def test_later_structural_fits_paired_with_a_sensor_fault():
-    from siva_core._impl.diagnose.sets import after_sensor
+    from siva_core._impl.diagnose.sets import worth_pairing
 
     s = DiagnoseSettings()
     cands = []
@@ -146,7 +146,7 @@ def test_later_structural_fits_paired_with_a_sensor_fault():
         c = Candidate(EFFECTS[kind], G, {}, fitted=True)
         c.train_cost = cost
         cands.append(c)
-    got = after_sensor(cands, 0.01036, s)  # the stage started at 0.01036 (seed 13010)
+    got = worth_pairing(cands, 0.01036, s)  # the stage started at 0.01036 (seed 13010)
     # below (1 - step_min / 2) x 0.01036 = 0.00907, best first, at most pair_members
     assert [c.effect.kind for c in got] == ["coulomb", "spring", "clearance"]
 

@@ -23,7 +23,7 @@ from .scoring import validation_gap
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
-from .sets import after_sensor, choose_set
+from .sets import worth_pairing, choose_set
 from .where import _explain, spectral_noise_floor, where_analysis
 
 from .stage import Fraction, _explained, _partial, _polish, _refresh, _stage
@@ -93,7 +93,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             if c.category == "sensor":
                 shadowed[c.key] = shadowed_by_reading(c, rk) is not None
         if any(v.category == "sensor" for v in verdicts):  # paired with it at the end
-            later += after_sensor(rk, cur_fit.train_cost, settings)
+            later += worth_pairing(rk, cur_fit.train_cost, settings)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
         v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts), spectral=noise)
@@ -112,7 +112,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         if v is None:
             _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
             if verdicts:  # its best fits are still paired with the effect before it
-                refused = after_sensor(rk, cur_fit.train_cost, settings)
+                refused = worth_pairing(rk, cur_fit.train_cost, settings)
             break
         try:
             bootstrap_intervals(v, cur_train, proc)

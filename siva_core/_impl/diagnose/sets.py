@@ -375,13 +375,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     return None, [], rule
 
 
-def after_sensor(ranking: Sequence[Candidate], train_cost: float,
+def worth_pairing(ranking: Sequence[Candidate], train_cost: float,
                  settings: DiagnoseSettings) -> list[Candidate]:
-    """A later stage's structural fits worth pairing with the sensor fault named before
-    it: the ``pair_members`` best by train cost (one per kind and place) that lower the
-    stage's starting train cost by ``step_min`` / 2 at least.  Their *validation* closure
-    says little: they were fitted on records corrected with the fault's value fitted
-    without them (joint_sensor's doc: the clearance of seed 13010 closed -0.37)."""
+    """A later stage's structural fits worth pairing with the effect named before it
+    (a sensor fault, or a structural effect when that stage names nothing): the
+    ``pair_members`` best by train cost (one per kind and place) that lower the stage's
+    starting train cost by ``step_min`` / 2 at least.  Their *validation* closure says
+    little: they were fitted on records corrected with (or a model holding) the first
+    effect fitted without them (joint_sensor's doc: the clearance of seed 13010 closed
+    -0.37 after a sensor fault; branch second: 17278's damper m2-ground, refused alone,
+    completes the pair)."""
     fits = sorted((c for c in ranking if c.category == "structure" and c.fitted
                    and np.isfinite(c.train_cost)
                    and c.train_cost <= (1 - settings.step_min / 2) * train_cost),
