@@ -13,6 +13,7 @@ from ..recording import Recording
 from .outputs import _Outputs
 from .results import Candidate
 from .set_fit import SetFit
+from .settings import DiagnoseSettings
 
 
 def member_coefficients(s: Candidate) -> list[dict[str, float]]:
@@ -58,3 +59,9 @@ def contributions(s: Candidate, val: Sequence[Recording], proc: Processing) -> l
         d = r1 - r0
         result.append(float(d @ d) if np.all(np.isfinite(d)) else math.inf)
     return result
+
+
+def below_noise(contribution: float, noise: float | None, settings: DiagnoseSettings) -> bool:
+    """Whether a member's own contribution fails to show above the noise
+    (``contribution_noise`` x the spectral floor; never without a floor)."""
+    return noise is not None and not contribution > settings.contribution_noise * noise

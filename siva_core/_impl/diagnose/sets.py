@@ -32,7 +32,7 @@ from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
-from .set_members import contributions, member_coefficients
+from .set_members import below_noise, contributions, member_coefficients
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
@@ -241,15 +241,14 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         options += grow_sets(options, [*members, *mates, *faults],
                              structure, train, val, proc, gap_before, before_blocks, noise,
                              settings, progress, best_known(options, ranking))
-    single_gap = {c.key: c.gap_after for c in ranking if np.isfinite(c.gap_after)}
-    # the validation gap of every set fitted, by its members: a set of three without one
-    # member is the pair of the other two when that pair was fitted
-    set_gap = {frozenset(m.key for m in o.members): o.gap_after for o in options
-               if np.isfinite(o.gap_after)}
-    cur_gap = verdict.gap_after if verdict is not None else gap_before
     singles = {c.key: c for c in ranking if np.isfinite(c.gap_after)}
+    single_gap = {k: c.gap_after for k, c in singles.items()}
+    # every set fitted, by its members: a set of three without one member is the pair of
+    # the other two when that pair was fitted
     fitted_sets = {frozenset(m.key for m in o.members): o for o in options
                    if np.isfinite(o.gap_after)}
+    set_gap = {k: o.gap_after for k, o in fitted_sets.items()}
+    cur_gap = verdict.gap_after if verdict is not None else gap_before
     tester = BlockTest(val, proc, settings.test_blocks)
     chosen: SetFit | None = None
     chosen_without: list[float] = []
@@ -308,8 +307,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         if all(checks.values()):
             contrib = contributions(s, val, proc)
             low = [m.label() for m, x, r in zip(s.members, contrib, reading)
-                   if noise is not None and not x > settings.contribution_noise * noise
-                   and not (r and nuisance is not None)]
+                   if below_noise(x, noise, settings) and not (r and nuisance is not None)]
             tried[-1]["contributions"] = [float(x) for x in contrib]
             if low:
                 tried[-1]["checks"]["above_noise_each"] = False
@@ -365,7 +363,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         contrib = contributions(verdict, val, proc)
         x = contrib[0] if contrib else math.inf
         verdict.contribution = float(x)
-        if noise is not None and not x > settings.contribution_noise * noise:
+        if below_noise(x, noise, settings):
             rule["reason"] = (f"{verdict.label()} changes the validation outputs by less "
                               f"than {settings.contribution_noise:g} x the noise floor")
             return None, [], rule

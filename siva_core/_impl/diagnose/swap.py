@@ -35,7 +35,7 @@ from .model_edit import augmented
 from .outputs import Progress, _say
 from .results import Candidate
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
-from .set_members import contributions, member_coefficients
+from .set_members import below_noise, contributions, member_coefficients
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
 
@@ -81,6 +81,8 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
     # swaps are then fitted without the early stop)
     if settings.swap_kinds < 1 or chosen.structure is None or chosen.theta is None:
         return []
+    from ..refine import output_error
+
     vals = chosen.structure.as_dict(chosen.theta)
     coeffs = member_coefficients(chosen)
     recs = chosen.correct(train)
@@ -132,8 +134,6 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             if aug is None or not starts:
                 continue
             try:
-                from ..refine import output_error
-
                 costs = output_error(aug, np.stack(starts), list(recs), proc)
             except Exception:  # noqa: BLE001 - this kind cannot be simulated here
                 continue
@@ -169,10 +169,9 @@ def _swap_fit(chosen: SetFit, k: int, m: Candidate, others: list[Candidate], eff
                     coefficients={c: vals[p] for c, p in names.items()},
                     note=f"law swapped from {m.label()} in the set")
     members = [new if j == k else o for j, o in enumerate(others)]
-    sensor = chosen.sensor
     out = SetFit(eff, m.loc, dict(new.shape), structure=aug, names=dict(names),
                  theta=np.asarray(theta, float), fitted=True, amplitudes=m.amplitudes,
-                 members=members, sensor=sensor)
+                 members=members, sensor=chosen.sensor)
     mark_stopped(out, bool(getattr(res, "stopped", False)), cost, chosen.train_cost,
                  settings)
     finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
@@ -224,9 +223,9 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
                   rule: dict[str, object], progress: Progress | None = None
                   ) -> tuple[SetFit, list[list[dict[str, object]]]]:
     """The chosen set with each structural member's look-alike laws swapped in
-    (``swap``): the swap that lowers its gap beyond the noise replaces it when it is
-    consistent and every member still shows above the noise; the swaps within the noise
-    are the members' rivals.  Each member's ``closure_added`` is what the set loses
+    (``swap``): the swap with the lowest validation gap replaces it when it is
+    consistent and every member still shows above the noise (``swap_rivals``); the sets
+    within ``swap_noise`` x the floor of the named one give the members' rivals.  Each member's ``closure_added`` is what the set loses
     without it (the others' single gaps, as the set was judged)."""
     from .verdict import _consistent
 
@@ -243,8 +242,7 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
 
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
-        low = noise is not None and any(not x > settings.contribution_noise * noise
-                                        for x in contrib[id(s)])
+        low = any(below_noise(x, noise, settings) for x in contrib[id(s)])
         consistent = _consistent(s, settings.record_tolerance)
         entry = next((e for e in tried if e["set"] == s.label()), {})
         entry.update({"contributions": [float(x) for x in contrib[id(s)]],
