@@ -66,7 +66,8 @@ def test_the_diagnosis_states_the_gain_its_pulse_cannot_tell():
     lim = reading_limit(st, th, [_hit(2.0, 0.5)])
     assert lim is not None and lim["channel"] == "force_x" and lim["band"] > 0.5
     assert "force_x" in lim["text"] and "cannot be told" in lim["text"]
-    assert math.isclose(lim["low"] * lim["high"], 1.0)
+    # lopsided: wider half-sines pass through two samples, narrower ones hardly do
+    assert lim["low"] < 0.5 and 1.0 < lim["high"] < 1.2
     assert reading_limit(st, th, [_hit(15.0, 0.3)])["band"] < 0.02
     assert reading_limit(st, th, [_hit(40.0, 0.3)]) is None  # read to well under 1 %
     quiet = Recording(np.arange(512) / 512.0, {"acc_x": np.zeros(512)}, "quiet")

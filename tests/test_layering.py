@@ -19,6 +19,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_simulate.py": {"siva_core._impl.simulate": "the numba kernel cache"},
     "tests/test_diagnose_gain_reading.py": {
         "siva_core._impl.diagnose.pulse_reading": "reading_limit on synthetic hits"},
+    "tests/test_diagnose_sensorside.py": {
+        "siva_core._impl.diagnose.pulse_reading": "the lopsided gain range, the 1-DOF note",
+        "siva_core._impl.diagnose.set_members": "a sensor member's response channel"},
     "tests/test_refine.py": {"siva_core._impl.output_error": "patches the problem's simulate"},
     "tests/test_sample_gain.py": {"siva_core._impl.output_error.sample_gain": "its pattern"},
     "tests/test_training.py": {"siva_core._impl.networks": "the networks' internals"},

@@ -17,7 +17,7 @@ from .fitting import bootstrap_intervals
 from .band import fit_nominal_in_band
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
-from .pulse_reading import reading_limit, shadowed_by_reading
+from .pulse_reading import one_dof_gain_note, reading_limit, shadowed_by_reading
 from .results import Candidate, Diagnosis
 from .scoring import validation_gap
 from .settings import DiagnoseSettings
@@ -172,6 +172,10 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     if limit is not None:  # what no verdict can say either way (pulse_reading's doc)
         rule["pulse_reading_limit"] = limit
         rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {limit['text']}"
+    same = one_dof_gain_note(structure, verdicts)
+    if same is not None:  # an accelerometer gain a is a force gain 1/a on one DOF
+        rule["one_dof_gain"] = same
+        rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {same}"
     if verdict is None:
         where["explanation"] = _explain(where, None) + (
             f" No candidate is named: {rule['reason']}."

@@ -32,7 +32,7 @@ from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
-from .set_members import below_noise, contributions, member_coefficients
+from .set_members import contributions, member_coefficients, shown
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
@@ -252,6 +252,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     tester = BlockTest(val, proc, settings.test_blocks)
     chosen: SetFit | None = None
     chosen_without: list[float] = []
+    chosen_own: list[str] = []
     chosen_nuisance: list[Candidate] = []
     tried = []
     for s in sorted(options, key=lambda s: s.gap_after if np.isfinite(s.gap_after)
@@ -306,13 +307,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                           else "") + ")")
         if all(checks.values()):
             contrib = contributions(s, val, proc)
-            low = [m.label() for m, x, r in zip(s.members, contrib, reading)
-                   if below_noise(x, noise, settings) and not (r and nuisance is not None)]
+            shows, own = shown(s, contrib, val, proc, noise, settings)
+            low = [m.label() for m, ok, r in zip(s.members, shows, reading)
+                   if not ok and not (r and nuisance is not None)]
             tried[-1]["contributions"] = [float(x) for x in contrib]
+            if own:
+                tried[-1]["own_channel"] = own
             if low:
                 tried[-1]["checks"]["above_noise_each"] = False
                 continue
-            chosen, chosen_without = s, without
+            chosen, chosen_without, chosen_own = s, without, own
             if nuisance is not None:
                 chosen_nuisance = [m for m, r in zip(s.members, reading) if r]
             for m, x, w in zip(s.members, contrib, without):
@@ -357,18 +361,23 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                   for m, rv in zip(chosen.members, member_rivals) if rv]
         if cannot:
             rule["reason"] = f"{rule['reason']}; the data cannot separate {'; '.join(cannot)}"
+        if chosen_own:
+            rule["reason"] = f"{rule['reason']}; {'; '.join(chosen_own)}"
         _say(progress, f"set: {chosen.label()} closes {chosen.closure:.3f}")
         return named[0], named, rule
     if verdict is not None:
         contrib = contributions(verdict, val, proc)
         x = contrib[0] if contrib else math.inf
         verdict.contribution = float(x)
-        if below_noise(x, noise, settings):
+        shows, own = shown(verdict, [x], val, proc, noise, settings)
+        if not shows[0]:
             rule["reason"] = (f"{verdict.label()} changes the validation outputs by less "
                               f"than {settings.contribution_noise:g} x the noise floor")
             return None, [], rule
         verdict.closure_added = float(verdict.closure)
         rule["combined_closure"] = float(verdict.closure)
+        if own:
+            rule["own_channel"] = own
         return verdict, [verdict], rule
     return None, [], rule
 

@@ -35,7 +35,7 @@ from .model_edit import augmented
 from .outputs import Progress, _say
 from .results import Candidate
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
-from .set_members import below_noise, contributions, member_coefficients
+from .set_members import contributions, member_coefficients, shown
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
 
@@ -242,7 +242,7 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
 
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
-        low = any(below_noise(x, noise, settings) for x in contrib[id(s)])
+        low = not all(shown(s, contrib[id(s)], val, proc, noise, settings)[0])
         consistent = _consistent(s, settings.record_tolerance)
         entry = next((e for e in tried if e["set"] == s.label()), {})
         entry.update({"contributions": [float(x) for x in contrib[id(s)]],

@@ -49,14 +49,23 @@ def spectral_noise_floor(structure: Structure, records: Sequence[Recording],
                          proc: Processing, theta: np.ndarray) -> float | None:
     """Mean white-noise floor of the processed records as an NMSE (``_noise_nmse``): the
     level a model that is right leaves on them."""
+    per = channel_noise_floors(structure, records, proc, theta)
+    return float(np.mean(per)) if per is not None else None
+
+
+def channel_noise_floors(structure: Structure, records: Sequence[Recording],
+                         proc: Processing, theta: np.ndarray) -> np.ndarray | None:
+    """Each DOF's white-noise floor as an NMSE of that DOF (``_noise_nmse`` per column),
+    averaged over the records: the floor against which a change confined to one response
+    channel is judged (``set_members.shown``); their mean is the spectral floor."""
     outs = _Outputs(structure, records, proc, theta)
     vals = []
     for r in outs.records:
         y = r.target / r.rms
         t = _kept_time(proc, r.rec, structure.dofs, len(y))
         fs = 1.0 / (t[1] - t[0]) if len(t) > 1 else 1.0
-        vals.append(_noise_nmse(y, fs, _passband(proc, fs)))
-    return float(np.mean(vals)) if vals else None
+        vals.append(_noise_nmse_each(y, fs, _passband(proc, fs)))
+    return np.mean(vals, axis=0) if vals else None
 
 
 def where_analysis(structure: Structure, theta_nom: np.ndarray, records: Sequence[Recording],
@@ -161,12 +170,20 @@ def _kept_time(proc: Processing, rec: Recording, dofs: Sequence[str], n: int) ->
 
 
 def _noise_nmse(y: np.ndarray, fs: float, band: tuple[float, float] | None) -> float:
-    """White-noise floor of a normalised measured record as an NMSE: the median Welch PSD
-    over the chain's passband (a decaying response occupies few bins, noise all of them)
-    times the passband width, over the signal's variance.  Stationary lines (hum) are not
-    counted; bins the chain filtered out would bias the median low, so they are excluded."""
+    """White-noise floor of a normalised measured record as an NMSE, the mean over its
+    DOFs of ``_noise_nmse_each``."""
+    return float(np.mean(_noise_nmse_each(y, fs, band)))
+
+
+def _noise_nmse_each(y: np.ndarray, fs: float, band: tuple[float, float] | None
+                     ) -> np.ndarray:
+    """White-noise floor of each DOF of a normalised measured record as an NMSE: the median
+    Welch PSD over the chain's passband (a decaying response occupies few bins, noise all
+    of them) times the passband width, over the signal's variance.  Stationary lines (hum)
+    are not counted; bins the chain filtered out would bias the median low, so they are
+    excluded."""
     if len(y) < 32:
-        return 0.0
+        return np.zeros(y.shape[1] if y.ndim > 1 else 1)
     f, P = signal.welch(y, fs=fs, axis=0, nperseg=min(len(y), 1024))
     lo, hi = band if band is not None else (0.0, fs / 2)
     hi = min(hi, fs / 2)
@@ -175,7 +192,7 @@ def _noise_nmse(y: np.ndarray, fs: float, band: tuple[float, float] | None) -> f
         m = f > 0
     var = np.mean(y ** 2, axis=0)
     floor = np.median(P[m], axis=0) * (hi - lo)
-    return float(np.mean(floor / np.maximum(var, 1e-300)))
+    return np.atleast_1d(floor / np.maximum(var, 1e-300))
 
 
 def _amplitude_trend(entries: Sequence[dict[str, Any]]) -> str:
