@@ -21,8 +21,10 @@ Every reading of the samples delivers their sum x dt; the half-sines that pass t
 same samples (and leave the samples around them at zero) deliver 2 P w / pi, which for a
 pulse of 2-4 samples differs from the sum by up to 5-27 % with the phase of the samples
 (19021: a 2-sample pulse at 822 Hz, sum 0.90 x the integral; the diagnosis named a force
-gain 1.11 on that null).  ``impulse_band`` is the largest such difference over the
-half-sines consistent with a record's samples; it is added to the band.
+gain 1.11 on that null).  ``impulse_range`` gives the lowest and highest ratio of such a
+half-sine's impulse to the samples' sum; the gains it explains are the inverse range,
+lopsided for two samples (wider half-sines pass through them, narrower ones hardly do;
+issue 16, fresh seed 17331), and the readings' margin widens it (``gain_range``).
 """
 from __future__ import annotations
 
