@@ -104,7 +104,7 @@ def shown(s: Candidate, contrib: Sequence[float], val: Sequence[Recording],
     floors = None
     for k, m in enumerate(members):
         dof = response_dof(m, s.structure)
-        if ok[k] or dof is None or k >= len(ok):
+        if k >= len(ok) or ok[k] or dof is None:
             continue
         if floors is None:
             floors = channel_noise_floors(s.structure, val, proc, s.theta)
