@@ -43,3 +43,29 @@ def test_a_later_stage_is_judged_against_the_noise_not_the_fixed_floor():
     assert later is c
     at_noise, _ = decide([c], 0.0025, 2e-3, DiagnoseSettings(), later=True)
     assert at_noise is None                              # below 2 x the noise floor
+
+
+def test_a_lead_removing_many_times_the_noise_is_kept_tentatively():
+    """No single closes half of a gap many times the noise (fresh seed 17335: a cubic
+    damper m1-m4 closed 0.20 of 0.0922, removing 75 x the floor 0.000247; the coulomb of
+    the pair showed only from its model).  ``large_part`` keeps such a lead whatever its
+    closure; a removal under ``faint_noise`` x the floor, a gap at the noise, no
+    spectral floor, or a force gain the pulse reading explains is not kept."""
+    from siva_core import EFFECTS
+    from siva_core._impl.diagnose import Candidate, Location
+    from siva_core._impl.diagnose.stage import _partial, large_part
+
+    s = DiagnoseSettings()
+    gap, noise = 0.09217, 0.0002468
+    lead = Candidate(EFFECTS["cubic_damper"], Location(0, 3, ("m1", "m4")), {},
+                     fitted=True, gap_before=gap, gap_after=0.07369, closure=0.200)
+    rule = {"checks": {"above_noise": True, "closure": False, "separation": False,
+                       "consistent": True}}
+    assert not _partial(rule, [lead], s)                 # under step_min: refused before
+    part = large_part([lead], gap, noise, s)
+    assert part is not None and 74 < part["removed_x_floor"] < 76
+    assert large_part([lead], gap, None, s) is None
+    assert large_part([lead], gap, 0.0185 / 9, s) is None   # removes 9 x: not kept
+    assert large_part([lead], gap, gap / 9, s) is None      # the gap itself 9 x the floor
+    lead.reading = True
+    assert large_part([lead], gap, noise, s) is None

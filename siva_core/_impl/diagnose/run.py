@@ -26,7 +26,8 @@ from .verdict import decide
 from .sets import worth_pairing, choose_set
 from .where import _explain, spectral_noise_floor, where_analysis
 
-from .stage import Fraction, _explained, _partial, _polish, _refresh, _stage
+from .stage import (Fraction, _explained, _partial, _polish, _refresh, _stage,
+                    large_part)
 
 
 def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Recording],
@@ -102,13 +103,23 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                        "verdict": v.label() if v is not None else None})
         if n == 0:
             ranking, cands, rule = rk, cs, r
-        if v is None and _partial(r, rk, settings) and n + 1 < n_stages:
+        part = large_part(rk, cur_gap, noise, settings) if v is None and not verdicts \
+            else None
+        if v is None and (_partial(r, rk, settings) or part is not None) \
+                and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
             v = rk[0]
             stages[-1]["tentative"] = v.label()
-            _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap: "
-                           "a part of it, looking for a second effect")
+            if part is not None and not _partial(r, rk, settings):
+                stages[-1]["tentative_large_part"] = part
+                _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the "
+                               f"gap, removing {part['removed_x_floor']:.1f} x the noise "
+                               f"floor (>= {settings.faint_noise:g} x): a part of it, "
+                               "looking for the rest")
+            else:
+                _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the "
+                               "gap: a part of it, looking for a second effect")
         if v is None:
             _say(progress, f"stage {n + 1}: nothing named ({r.get('reason')})")
             if verdicts:  # its best fits are still paired with the effect before it

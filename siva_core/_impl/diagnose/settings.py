@@ -44,7 +44,11 @@ class DiagnoseSettings:
     faint_noise: ... or the gap is at least this multiple of the spectral noise floor and
         the best candidate closes ``closure_min`` of it (a faint effect judged against the
         noise, not a fixed floor; issue 16: a quadratic damper 4-8 x the noise RMS closing
-        0.75 of a 0.0021 gap was refused by the fixed floor).
+        0.75 of a 0.0021 gap was refused by the fixed floor).  Also: a first stage's
+        best candidate removing at least this multiple of the floor is kept tentatively
+        whatever its closure, and the next stage starts from it (``stage.large_part``;
+        fresh seed 17335: 0.20 closed, 75 x the floor removed, the coulomb of the pair
+        found only from its model).
     sensor_excess: a sensor fault (one value; the model otherwise as it was) passes the
         size checks above when it removes this share of the gap *above the noise floor*
         and the interval of its value excludes the fault-free sensor

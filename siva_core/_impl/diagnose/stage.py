@@ -49,6 +49,34 @@ def _partial(rule: dict[str, Any], ranking: Sequence[Candidate],
                 and ranking[0].closure >= settings.step_min)
 
 
+def large_part(ranking: Sequence[Candidate], gap_before: float, noise: float | None,
+               settings: DiagnoseSettings) -> dict[str, float] | None:
+    """The best candidate is kept tentatively, whatever its closure, when the part of the
+    gap it removes is itself at least ``faint_noise`` x the spectral noise floor (and the
+    gap at least as large): several effects, none closing half the gap alone, each many
+    times the noise.  ``_partial`` needs ``step_min`` of the whole gap and a gap above
+    the stage's floor, which is capped by the best *train* cost: with two effects acting
+    at different amplitudes neither holds (fresh seed 17335: a cubic damper m1-m4 lowered
+    the train cost 0.121 -> 0.015 but closed 0.20 of the validation gap, 75 x the floor
+    removed; the coulomb m1-m2, strong at the small validation amplitudes, was never
+    screened from the nominal model; seed 17330: a poor nominal fit, train cost 0.43,
+    made the stage's floor 0.31 against a spectral one of 0.0021, and the gap read as
+    "at the noise level").  Returns the numbers (for the stage's entry), or None.  What is
+    named is still decided by the set rule (``sets.choose_set``); a tentative effect is
+    never named alone."""
+    if not ranking or noise is None or not noise > 0 or not np.isfinite(gap_before):
+        return None
+    top = ranking[0]
+    if top.reading or not np.isfinite(top.gap_after):
+        return None
+    removed = gap_before - top.gap_after
+    if gap_before < settings.faint_noise * noise or removed < settings.faint_noise * noise:
+        return None
+    return {"removed": float(removed), "removed_x_floor": float(removed / noise),
+            "gap_x_floor": float(gap_before / noise), "closure": float(top.closure),
+            "faint_noise": settings.faint_noise}
+
+
 def _refresh(verdicts: Sequence[Candidate]) -> None:
     """Earlier structural effects were re-fitted jointly with the later ones: report their
     coefficients from the last fit (their stage-1 intervals no longer apply)."""
