@@ -24,6 +24,7 @@ from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
 from .sets import worth_pairing, choose_set
+from .ties import break_tie
 from .where import _explain, spectral_noise_floor, where_analysis
 
 from .stage import (Fraction, _explained, _partial, _polish, _refresh, _stage,
@@ -179,6 +180,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]
+    verdict, verdicts = break_tie(verdict, verdicts, ranking, train, val, proc, gap_before,
+                                  where["noise_floor"], psd_floor, settings, rule, progress)
     limit = reading_limit(structure, theta, [*train, *val])
     if limit is not None:  # what no verdict can say either way (pulse_reading's doc)
         rule["pulse_reading_limit"] = limit

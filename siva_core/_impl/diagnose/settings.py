@@ -160,6 +160,12 @@ class DiagnoseSettings:
         a difference below it is within what the noise and the nominal parameters'
         extrapolation move (17240: the quadratic damper m1-m2's set 0.00864, the cubic's
         0.01018, floor 0.00518).
+    tie_contenders: a single structural verdict and at most this many fitted singles
+        with as many coefficients whose validation gap is within ``swap_noise`` x the
+        noise floor of its gap, the lowest by train cost, are refitted on all records;
+        the best fit there is named (``ties``: the same law at a neighbouring place, or a
+        one-coefficient look-alike, has the same freedom, so all records compare them
+        fairly).  0 = off.
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
@@ -216,3 +222,4 @@ class DiagnoseSettings:
     test_z: float = 3.0
     swap_kinds: int = 2
     swap_noise: float = 1.0
+    tie_contenders: int = 3

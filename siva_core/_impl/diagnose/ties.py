@@ -1,0 +1,170 @@
+"""Ties on the validation records broken on all records (issue 16, branch place): the
+right law named at a neighbouring place, or its look-alike named at the right place.
+
+A single verdict is the candidate with the lowest validation gap.  On the chain3 matrix
+that gap often cannot tell the places apart: for the quadratic damper m2-ground (small)
+the fits at m3-ground and m2-ground left 0.000177 and 0.000279, the true model itself
+0.000202, all below the spectral noise floor 0.00033, and m3-ground was named.  The
+validation records differ from the train records in amplitude, so a fit at a wrong place
+that happens to extrapolate well wins by a difference the noise makes.
+
+Validation guards against a model that fits the train records better only because it
+has more freedom.  Candidates with the *same number of coefficients* (the same law at
+two places, or two one-coefficient look-alike laws) have the same freedom, so their fit
+to *all* the records is a fair comparison (a likelihood ratio at equal dimension) and
+it uses twice the data.  So when fitted singles of the verdict's category and
+coefficient count leave a validation gap within ``swap_noise`` x the spectral floor of
+the verdict's (``swap.py``'s margin: the data cannot separate them there), the verdict
+and the ``tie_contenders`` best of them by train cost are each refitted on train +
+validation records from their own fit (``fit_nfev``, stopped early as a candidate fit
+against the best refit so far), and the lowest residual over all records is named --
+with its own train-only fit, validation closure and checks (``verdict.decide`` on it
+alone, and its contribution above the noise), else the verdict stands.  A contender
+whose residual over all records is not ``test_z`` standard errors above the named one's
+(``set_test.gain_z`` on all records) is listed as its rival: the data cannot separate
+them.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..processing import Processing
+from ..recording import Recording
+from .early_stop import cannot_win
+from .outputs import Progress, _say
+from .results import Candidate
+from .set_members import below_noise, contributions
+from .set_test import gain_z, residual
+from .settings import FAST, DiagnoseSettings
+from .verdict import decide
+
+
+def contenders(verdict: Candidate, ranking: Sequence[Candidate], noise: float | None,
+               settings: DiagnoseSettings) -> list[Candidate]:
+    """The fitted singles the validation records cannot separate from ``verdict`` (gap
+    within ``swap_noise`` x the spectral floor of its gap; 1 - ``separation`` of it
+    without a floor) with as many coefficients, the ``tie_contenders`` lowest by train
+    cost."""
+    if noise is not None and noise > 0:
+        margin = settings.swap_noise * noise
+    else:
+        margin = (1.0 - settings.separation) * verdict.gap_after
+    n = len(verdict.effect.coefficients)
+    out = [c for c in ranking if c is not verdict and c.key != verdict.key and c.fitted
+           and c.category == verdict.category and c.structure is not None
+           and c.theta is not None and not c.reading and not c.stopped
+           and len(c.effect.coefficients) == n and np.isfinite(c.gap_after)
+           and np.isfinite(c.train_cost) and c.gap_after - verdict.gap_after <= margin]
+    out.sort(key=lambda c: c.train_cost)
+    return out[:settings.tie_contenders]
+
+
+def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
+               settings: DiagnoseSettings, best: float
+               ) -> tuple[Candidate, float] | None:
+    """``c`` refitted on ``records`` from its fit (a copy: ``c`` keeps its train-only
+    fit) and its residual energy there; None when it cannot be fitted or was stopped."""
+    from ..refine import refine
+
+    recs = c.correct(records)
+    try:
+        res = refine(c.structure, c.theta, recs, proc, max_nfev=settings.fit_nfev,
+                     horizons=None, uncertainty=FAST, stop=cannot_win(best, settings))
+    except Exception:  # noqa: BLE001 - a contender that cannot be refitted is none
+        return None
+    if bool(getattr(res, "stopped", False)):
+        return None
+    out = replace(c, theta=np.asarray(res.theta, float))
+    r = residual(out, records, proc)
+    if r is None:
+        return None
+    return out, float(r[0] @ r[0])
+
+
+def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
+              ranking: Sequence[Candidate], train: Sequence[Recording],
+              val: Sequence[Recording], proc: Processing, gap_before: float,
+              noise_floor: float | None, noise: float | None, settings: DiagnoseSettings,
+              rule: dict[str, Any], progress: Progress | None = None
+              ) -> tuple[Candidate | None, list[Candidate]]:
+    """The single structural verdict, or the contender that fits all records best (module
+    doc); ``rule["tie"]`` says what was compared.  A set, a sensor fault or no verdict is
+    returned as it is."""
+    if (verdict is None or len(verdicts) != 1 or verdicts[0] is not verdict
+            or verdict.category != "structure" or settings.tie_contenders < 1
+            or verdict.structure is None or verdict.theta is None):
+        return verdict, verdicts
+    rivals = contenders(verdict, ranking, noise, settings)
+    if not rivals:
+        return verdict, verdicts
+    t0 = time.perf_counter()
+    records = [*train, *val]
+    fits: list[tuple[Candidate, Candidate, float]] = []  # (single, refit, residual)
+    best = math.inf
+    for c in [verdict, *rivals]:
+        got = _refit_all(c, records, proc, settings, best)
+        if got is not None:
+            fits.append((c, *got))
+            best = min(best, got[1])
+    entry: dict[str, Any] = {
+        "compared": [{"candidate": c.label(), "gap": float(c.gap_after),
+                      "train_cost": float(c.train_cost), "all_records": g}
+                     for c, _, g in fits]}
+    rule["tie"] = entry
+    if not fits:
+        return verdict, verdicts
+    fits.sort(key=lambda f: f[2])
+    win, win_fit, win_gap = fits[0]
+    new = verdict
+    if win is not verdict:
+        ok, _ = decide([win], gap_before, noise_floor, settings)
+        contrib = contributions(win, val, proc)
+        x = contrib[0] if contrib else math.inf
+        if ok is not None and not below_noise(x, noise, settings):
+            new = win
+            entry["named"] = {"from": verdict.label(), "to": win.label()}
+            _say(progress, f"tie: {win.label()} fits all records best "
+                           f"({win_gap:.4g} against {verdict.label()}'s "
+                           + ", ".join(f"{g:.4g}" for c, _, g in fits if c is verdict)
+                           + ")")
+        else:
+            entry["refused"] = win.label()
+    ref = next(f for f in fits if f[0] is new)
+    res_new = residual(ref[1], records, proc)
+    z_of = {}
+    tied = []
+    for c, fit, g in fits:
+        if c is new:
+            continue
+        z = gain_z(residual(fit, records, proc), res_new, settings.test_blocks)
+        z_of[c.label()] = round(float(z), 2) if np.isfinite(z) else None
+        if not z >= settings.test_z:
+            tied.append({"candidate": c.label(), "closure": float(c.closure),
+                         "all_records": g})
+    entry["z"] = z_of
+    entry["seconds"] = time.perf_counter() - t0
+    if new is not verdict:
+        new.rivals = [r for r in new.rivals if r["candidate"] != verdict.label()]
+        new.closure_added = float(new.closure)
+        new.contribution = float(x)
+        rule["combined_closure"] = float(new.closure)
+        rule["reason"] = (f"{new.label()} fits all records best "
+                          f"({ref[2]:.4g} against {verdict.label()}'s "
+                          + ", ".join(f"{g:.4g}" for c, _, g in fits if c is verdict)
+                          + f"), with as many coefficients; the validation records cannot "
+                          f"separate them (gaps {new.gap_after:.4g} and "
+                          f"{verdict.gap_after:.4g}, within {settings.swap_noise:g} x the "
+                          f"noise floor" + (f" {noise:.3g})" if noise else ")"))
+    known = {r["candidate"] for r in new.rivals}
+    new.rivals = [*new.rivals, *(r for r in tied if r["candidate"] not in known)]
+    if tied:
+        rule["reason"] = (f"{rule.get('reason') or 'all checks pass'}; the data cannot "
+                          f"separate {new.label()} from "
+                          + ", ".join(r["candidate"] for r in tied)
+                          + f" (all records, z < {settings.test_z:g})")
+    return new, [new]
