@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from siva_core import Recording, Structure, diagnose
+from siva_core import Recording, diagnose
 from siva_core._impl.diagnose.pulse_reading import reading_limit
+
+from synthetic import half_sine_hit, unit_sdof
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,34 +44,18 @@ def test_the_truth_puts_a_gain_within_the_reading_of_a_two_sample_pulse_only():
     assert pt.gain_reading(("channel_delay", "acc_m1", 0.001), 1, 5e-3, 367.0, 0.05, 0) is None
 
 
-def _sdof() -> tuple[Structure, np.ndarray]:
-    spec = {"name": "sdof", "dofs": ["x"], "mass": {"x": 1.0},
-            "elements": [{"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}},
-                         {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c"}}]}
-    st = Structure.from_dict(spec)
-    return st, st.vector({"k": (2 * math.pi * 10.0) ** 2, "c": 1.0})
-
-
-def _hit(width_samples: float, phase: float) -> Recording:
-    fs = 512.0
-    t = np.arange(1024) / fs
-    x = (t - (40 + phase) / fs) / (width_samples / fs)
-    f = np.where((x >= 0) & (x <= 1), 100.0 * np.sin(np.pi * np.clip(x, 0, 1)), 0.0)
-    return Recording(t, {"force_x": f, "acc_x": np.zeros(len(t))}, "hit")
-
-
 def test_the_diagnosis_states_the_gain_its_pulse_cannot_tell():
     """A 2-sample pulse: a statement naming the hammered channel with a band over 50 %;
     a 15-sample pulse: a band under 2 %; a 40-sample pulse and records without a force
     channel: none."""
-    st, th = _sdof()
-    lim = reading_limit(st, th, [_hit(2.0, 0.5)])
+    st, th = unit_sdof()
+    lim = reading_limit(st, th, [half_sine_hit(2.0, 0.5)])
     assert lim is not None and lim["channel"] == "force_x" and lim["band"] > 0.5
     assert "force_x" in lim["text"] and "cannot be told" in lim["text"]
     # lopsided: wider half-sines pass through two samples, narrower ones hardly do
     assert lim["low"] < 0.5 and 1.0 < lim["high"] < 1.2
-    assert reading_limit(st, th, [_hit(15.0, 0.3)])["band"] < 0.02
-    assert reading_limit(st, th, [_hit(40.0, 0.3)]) is None  # read to well under 1 %
+    assert reading_limit(st, th, [half_sine_hit(15.0, 0.3)])["band"] < 0.02
+    assert reading_limit(st, th, [half_sine_hit(40.0, 0.3)]) is None  # read to well under 1 %
     quiet = Recording(np.arange(512) / 512.0, {"acc_x": np.zeros(512)}, "quiet")
     assert reading_limit(st, th, [quiet]) is None
 

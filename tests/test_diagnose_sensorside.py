@@ -12,35 +12,21 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from siva_core import DiagnoseSettings, Recording, Structure, diagnose
+from siva_core import DiagnoseSettings, Structure, diagnose
 from siva_core._impl.diagnose.pulse_reading import gain_range, impulse_range, one_dof_gain_note
 from siva_core._impl.diagnose.set_members import response_dof
 
+from synthetic import half_sine_hit, unit_sdof
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _sdof() -> tuple[Structure, np.ndarray]:
-    spec = {"name": "sdof", "dofs": ["x"], "mass": {"x": 1.0},
-            "elements": [{"kind": "spring", "between": ["x", "ground"], "params": {"k": "k"}},
-                         {"kind": "damper", "between": ["x", "ground"], "params": {"c": "c"}}]}
-    st = Structure.from_dict(spec)
-    return st, st.vector({"k": (2 * math.pi * 10.0) ** 2, "c": 1.0})
-
-
-def _hit(width_samples: float, phase: float) -> Recording:
-    fs = 512.0
-    t = np.arange(1024) / fs
-    x = (t - (40 + phase) / fs) / (width_samples / fs)
-    f = np.where((x >= 0) & (x <= 1), 100.0 * np.sin(np.pi * np.clip(x, 0, 1)), 0.0)
-    return Recording(t, {"force_x": f, "acc_x": np.zeros(len(t))}, "hit")
 
 
 def test_a_two_sample_pulse_explains_low_gains_far_more_than_high_ones():
     """The half-sines through two samples may be much wider (impulse up to ~8.6 x the
     samples' sum) but hardly narrower (0.89 x): the gains they explain are ~0.12-1.12, not
     the symmetric 0.12-8.6; the true impulse (width 2, phase 0.5) is inside."""
-    st, th = _sdof()
-    rec = _hit(2.0, 0.5)
+    st, th = unit_sdof()
+    rec = half_sine_hit(2.0, 0.5)
     lo, hi = impulse_range([rec], ["x"])
     assert 0.85 < lo < 1.0 and hi > 5.0
     true = 2 * 100.0 * 2.0 / math.pi / float(np.sum(rec.channels["force_x"]))
@@ -52,7 +38,7 @@ def test_a_two_sample_pulse_explains_low_gains_far_more_than_high_ones():
 
 
 def test_a_one_dof_gain_is_stated_in_both_sensors_terms():
-    st, _ = _sdof()
+    st, _ = unit_sdof()
     gain = SimpleNamespace(category="sensor", effect=SimpleNamespace(
         kind="force_gain", magnitude="gain"), coefficients={"gain": 1.25},
         label=lambda: "force_gain force_x")
