@@ -47,15 +47,16 @@ def _bands(freqs: Sequence[float], nyq: float) -> list[tuple[str, float, float]]
 
 def spectral_noise_floor(structure: Structure, records: Sequence[Recording],
                          proc: Processing, theta: np.ndarray) -> float | None:
-    """Mean white-noise floor of the processed records as an NMSE (``_noise_nmse``): the
-    level a model that is right leaves on them."""
+    """Mean white-noise floor of the processed records as an NMSE (the mean of
+    ``channel_noise_floors`` over the DOFs): the level a model that is right leaves on
+    them."""
     per = channel_noise_floors(structure, records, proc, theta)
     return float(np.mean(per)) if per is not None else None
 
 
 def channel_noise_floors(structure: Structure, records: Sequence[Recording],
                          proc: Processing, theta: np.ndarray) -> np.ndarray | None:
-    """Each DOF's white-noise floor as an NMSE of that DOF (``_noise_nmse`` per column),
+    """Each DOF's white-noise floor as an NMSE of that DOF (``_noise_nmse_each``),
     averaged over the records: the floor against which a change confined to one response
     channel is judged (``set_members.shown``); their mean is the spectral floor."""
     outs = _Outputs(structure, records, proc, theta)
@@ -167,12 +168,6 @@ def _kept_time(proc: Processing, rec: Recording, dofs: Sequence[str], n: int) ->
     k = proc.decimation(rec.fs)
     t = rec.time[i0::k][:n]
     return t if len(t) == n else np.arange(n) * rec.dt * k + rec.time[0]
-
-
-def _noise_nmse(y: np.ndarray, fs: float, band: tuple[float, float] | None) -> float:
-    """White-noise floor of a normalised measured record as an NMSE, the mean over its
-    DOFs of ``_noise_nmse_each``."""
-    return float(np.mean(_noise_nmse_each(y, fs, band)))
 
 
 def _noise_nmse_each(y: np.ndarray, fs: float, band: tuple[float, float] | None
