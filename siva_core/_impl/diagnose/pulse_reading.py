@@ -108,7 +108,11 @@ def impulse_band(records: Sequence[Recording], dofs: Sequence[str]) -> float:
     (``impulse_range``'s widest side); 0 when no half-sine fits.  Very large (> 0.5) for a
     pulse of two samples whose edges leave the width free: the samples then hardly
     measure the impulse."""
-    lo, hi = impulse_range(records, dofs)
+    return _widest(*impulse_range(records, dofs))
+
+
+def _widest(lo: float, hi: float) -> float:
+    """The wider side of an impulse-ratio range around 1."""
     return max(1.0 - lo, hi - 1.0)
 
 
@@ -157,7 +161,7 @@ def gain_range(structure: Structure, theta: np.ndarray,
     margin = 1.0 + READING_MARGIN * reading_difference(min(modes), fs)
     low = min(1.0 / margin, 1.0 / (r_hi * margin))
     high = max(margin, margin / r_lo)
-    return low, high, max(1.0 - r_lo, r_hi - 1.0)
+    return low, high, _widest(r_lo, r_hi)
 
 
 def explained_by_reading(c: Candidate, records: Sequence[Recording],

@@ -66,9 +66,10 @@ def contenders(verdict: Candidate, ranking: Sequence[Candidate], noise: float | 
 
 def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
                settings: DiagnoseSettings, best: float
-               ) -> tuple[Candidate, float] | None:
+               ) -> tuple[Candidate, float, tuple[np.ndarray, list[int]]] | None:
     """``c`` refitted on ``records`` from its fit (a copy: ``c`` keeps its train-only
-    fit) and its residual energy there; None when it cannot be fitted or was stopped."""
+    fit), its residual energy there and the residual (``set_test.residual``, kept for the
+    block test); None when it cannot be fitted or was stopped."""
     from ..refine import refine
 
     recs = c.correct(records)
@@ -83,7 +84,7 @@ def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
     r = residual(out, records, proc)
     if r is None:
         return None
-    return out, float(r[0] @ r[0])
+    return out, float(r[0] @ r[0]), r
 
 
 def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
@@ -104,7 +105,8 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
         return verdict, verdicts
     t0 = time.perf_counter()
     records = [*train, *val]
-    fits: list[tuple[Candidate, Candidate, float]] = []  # (single, refit, residual)
+    # (single, refit, residual energy on all records, residual)
+    fits: list[tuple[Candidate, Candidate, float, tuple[np.ndarray, list[int]]]] = []
     best = math.inf
     for c in [verdict, *rivals]:
         got = _refit_all(c, records, proc, settings, best)
@@ -114,12 +116,12 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
     entry: dict[str, Any] = {
         "compared": [{"candidate": c.label(), "gap": float(c.gap_after),
                       "train_cost": float(c.train_cost), "all_records": g}
-                     for c, _, g in fits]}
+                     for c, _, g, _ in fits]}
     rule["tie"] = entry
     if not fits:
         return verdict, verdicts
     fits.sort(key=lambda f: f[2])
-    win, win_fit, win_gap = fits[0]
+    win, _, win_gap, _ = fits[0]
     new = verdict
     if win is not verdict:
         ok, _ = decide([win], gap_before, noise_floor, settings)
@@ -130,18 +132,17 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
             entry["named"] = {"from": verdict.label(), "to": win.label()}
             _say(progress, f"tie: {win.label()} fits all records best "
                            f"({win_gap:.4g} against {verdict.label()}'s "
-                           + ", ".join(f"{g:.4g}" for c, _, g in fits if c is verdict)
+                           + ", ".join(f"{g:.4g}" for c, _, g, _ in fits if c is verdict)
                            + ")")
         else:
             entry["refused"] = win.label()
     ref = next(f for f in fits if f[0] is new)
-    res_new = residual(ref[1], records, proc)
     z_of = {}
     tied = []
-    for c, fit, g in fits:
+    for c, _, g, res in fits:
         if c is new:
             continue
-        z = gain_z(residual(fit, records, proc), res_new, settings.test_blocks)
+        z = gain_z(res, ref[3], settings.test_blocks)
         z_of[c.label()] = round(float(z), 2) if np.isfinite(z) else None
         if not z >= settings.test_z:
             tied.append({"candidate": c.label(), "closure": float(c.closure),
@@ -155,7 +156,7 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
         rule["combined_closure"] = float(new.closure)
         rule["reason"] = (f"{new.label()} fits all records best "
                           f"({ref[2]:.4g} against {verdict.label()}'s "
-                          + ", ".join(f"{g:.4g}" for c, _, g in fits if c is verdict)
+                          + ", ".join(f"{g:.4g}" for c, _, g, _ in fits if c is verdict)
                           + f"), with as many coefficients; the validation records cannot "
                           f"separate them (gaps {new.gap_after:.4g} and "
                           f"{verdict.gap_after:.4g}, within {settings.swap_noise:g} x the "
