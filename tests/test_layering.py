@@ -37,6 +37,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
                                "siva_core._impl.effects": "effect amplitudes"},
     "tests/test_diagnose_parts.py": {"siva_core._impl.diagnose": "the diagnosis' parts",
                                      "siva_core._impl.effects": "effect amplitudes"},
+    "tests/test_diagnose_contribution.py": {
+        "siva_core._impl.diagnose": "a member's contribution against the fits without it"},
     "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
     "tests/test_diagnose_sets.py": {"siva_core._impl.diagnose": "sets of effects"},
     "tests/test_diagnose_triples.py": {"siva_core._impl.diagnose": "sets of three effects"},

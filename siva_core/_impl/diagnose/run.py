@@ -24,6 +24,7 @@ from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide
 from .sets import worth_pairing, choose_set
+from .without_member import KnownFits
 from .ties import break_tie
 from .where import _explain, spectral_noise_floor, where_analysis
 
@@ -173,15 +174,17 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     where["noise_floor_spectral"] = psd_floor
     verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings)
     rule = {**rule, **rule0}
+    known = KnownFits(structure, theta, train, val, proc)  # the fits without a member
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
         psd_floor, settings, progress, later, cands,
-        frozenset(k for k, r in shadowed.items() if r), refused)
+        frozenset(k for k, r in shadowed.items() if r), refused, known)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]
     verdict, verdicts = break_tie(verdict, verdicts, ranking, train, val, proc, gap_before,
-                                  where["noise_floor"], psd_floor, settings, rule, progress)
+                                  where["noise_floor"], psd_floor, settings, rule, progress,
+                                  known)
     limit = reading_limit(structure, theta, [*train, *val])
     if limit is not None:  # what no verdict can say either way (pulse_reading's doc)
         rule["pulse_reading_limit"] = limit

@@ -16,6 +16,7 @@ from .results import Candidate
 from .set_fit import SetFit
 from .settings import DiagnoseSettings
 from .where import channel_noise_floors
+from .without_member import KnownFits
 
 
 def member_coefficients(s: Candidate) -> list[dict[str, float]]:
@@ -33,18 +34,27 @@ def member_coefficients(s: Candidate) -> list[dict[str, float]]:
     return out
 
 
-def contributions(s: Candidate, val: Sequence[Recording], proc: Processing) -> list[float]:
+def contributions(s: Candidate, val: Sequence[Recording], proc: Processing,
+                  known: KnownFits | None = None,
+                  without: Sequence[Candidate | None] | None = None) -> list[float]:
     """Each structural member's own contribution to the simulated validation outputs, in
-    the gap's units (NMSE): the squared output change when its magnitude is set to zero,
-    the rest of the fit held.  Sensor members: the change of the records their
-    correction makes, the same way (nominal outputs held)."""
+    the gap's units (NMSE): the squared output change from the fitted set to the best fit
+    known without the member (``without_member``): its magnitude set to zero with the rest
+    of the fit held, or -- when ``known`` is given and it fits the train records better --
+    the fit without it (``without[k]`` for member k; a single's is the nominal refit,
+    None; a set member without a known fit is judged held).  Sensor members: the change
+    of the records their correction makes (nominal outputs held)."""
     if s.structure is None or s.theta is None:
         return []
     members = s.members if isinstance(s, SetFit) else [s]
+    if without is None:  # a single's fit without it is the nominal refit
+        refs: list[Candidate | None] | None = None if isinstance(s, SetFit) else [None]
+    else:
+        refs = list(without)
     outs = _Outputs(s.structure, s.correct(val), proc, s.theta)
     r0 = outs.residuals(s.theta)[0]
     result = []
-    for m in members:
+    for k, m in enumerate(members):
         if m.category == "sensor":
             raw = _Outputs(s.structure, val, proc, s.theta).residuals(s.theta)[0]
             result.append(float((raw - r0) @ (raw - r0)) if raw.shape == r0.shape
@@ -57,7 +67,13 @@ def contributions(s: Candidate, val: Sequence[Recording], proc: Processing) -> l
             continue
         th = np.array(s.theta, float)
         th[s.structure.free.index(p)] = 0.0
-        r1 = outs.residuals(th)[0]
+        r1 = None
+        if known is not None and refs is not None and k < len(refs):
+            r1, _ = known.reference(s, th, refs[k])
+            if r1 is not None and r1.shape != r0.shape:
+                r1 = None
+        if r1 is None:
+            r1 = outs.residuals(th)[0]
         d = r1 - r0
         result.append(float(d @ d) if np.all(np.isfinite(d)) else math.inf)
     return result

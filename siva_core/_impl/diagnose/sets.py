@@ -37,6 +37,7 @@ from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
+from .without_member import KnownFits
 
 
 def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: int = 3
@@ -127,7 +128,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                settings: DiagnoseSettings, progress: Progress | None = None,
                later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = (),
                shadowed_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset(),
-               refused: Sequence[Candidate] = ()
+               refused: Sequence[Candidate] = (), known: KnownFits | None = None
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
@@ -139,7 +140,10 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     a re-fitted copy of one is refused too.  A force gain within the band is not among
     them: in a set it is the records' nuisance (``nuisance_reading``).
     ``refused``: the best fits of a later stage that named nothing, each paired with the
-    one structural effect named before it."""
+    one structural effect named before it.
+    ``known``: the nominal refit and the train records: each member's contribution is
+    measured against the best fit known without it (``without_member``); without it,
+    against the member zeroed with the rest held."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -306,7 +310,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                        + (" [passes by the held-out test]" if by_test and all(checks.values())
                           else "") + ")")
         if all(checks.values()):
-            contrib = contributions(s, val, proc)
+            contrib = contributions(s, val, proc, known, wo)
             shows, own = shown(s, contrib, val, proc, noise, settings)
             low = [m.label() for m, ok, r in zip(s.members, shows, reading)
                    if not ok and not (r and nuisance is not None)]
@@ -366,7 +370,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         _say(progress, f"set: {chosen.label()} closes {chosen.closure:.3f}")
         return named[0], named, rule
     if verdict is not None:
-        contrib = contributions(verdict, val, proc)
+        contrib = contributions(verdict, val, proc, known)
         x = contrib[0] if contrib else math.inf
         verdict.contribution = float(x)
         shows, own = shown(verdict, [x], val, proc, noise, settings)

@@ -39,6 +39,7 @@ from .early_stop import cannot_win
 from .outputs import Progress, _say
 from .results import Candidate
 from .set_members import below_noise, contributions
+from .without_member import KnownFits
 from .set_test import gain_z, residual
 from .settings import FAST, DiagnoseSettings
 from .verdict import decide
@@ -91,7 +92,8 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
               ranking: Sequence[Candidate], train: Sequence[Recording],
               val: Sequence[Recording], proc: Processing, gap_before: float,
               noise_floor: float | None, noise: float | None, settings: DiagnoseSettings,
-              rule: dict[str, Any], progress: Progress | None = None
+              rule: dict[str, Any], progress: Progress | None = None,
+              known: KnownFits | None = None
               ) -> tuple[Candidate | None, list[Candidate]]:
     """The single structural verdict, or the contender that fits all records best (module
     doc); ``rule["tie"]`` says what was compared.  A set, a sensor fault or no verdict is
@@ -125,7 +127,7 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
     new = verdict
     if win is not verdict:
         ok, _ = decide([win], gap_before, noise_floor, settings)
-        contrib = contributions(win, val, proc)
+        contrib = contributions(win, val, proc, known)
         x = contrib[0] if contrib else math.inf
         if ok is not None and not below_noise(x, noise, settings):
             new = win
@@ -161,8 +163,8 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
                           f"separate them (gaps {new.gap_after:.4g} and "
                           f"{verdict.gap_after:.4g}, within {settings.swap_noise:g} x the "
                           f"noise floor" + (f" {noise:.3g})" if noise else ")"))
-    known = {r["candidate"] for r in new.rivals}
-    new.rivals = [*new.rivals, *(r for r in tied if r["candidate"] not in known)]
+    listed = {r["candidate"] for r in new.rivals}
+    new.rivals = [*new.rivals, *(r for r in tied if r["candidate"] not in listed)]
     if tied:
         rule["reason"] = (f"{rule.get('reason') or 'all checks pass'}; the data cannot "
                           f"separate {new.label()} from "
