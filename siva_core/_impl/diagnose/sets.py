@@ -9,10 +9,9 @@ are compared by their validation gap: a larger set replaces a smaller one only w
 effect it adds removes a real part of what the smaller one leaves (``step_min`` of it and
 more than the noise) and every member is needed (without it the set's gap grows by
 ``step_min``).  Every named member must also *show above the noise*: its own
-contribution to the simulated validation outputs (the output change when its magnitude
-is set to zero) must exceed ``noise_factor`` x the spectral noise floor — a spurious
-element fitted to a residue (the issue's null: k = 16 N/m) moves the outputs less than
-the noise does.
+contribution to the simulated validation outputs (the output change from the best fit
+known without it, ``without_member``) must exceed ``contribution_noise`` x the floor: a
+spurious element fitted to a residue (the issue's null: k = 16 N/m) moves them less.
 """
 from __future__ import annotations
 
@@ -140,10 +139,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     a re-fitted copy of one is refused too.  A force gain within the band is not among
     them: in a set it is the records' nuisance (``nuisance_reading``).
     ``refused``: the best fits of a later stage that named nothing, each paired with the
-    one structural effect named before it.
-    ``known``: the nominal refit and the train records: each member's contribution is
-    measured against the best fit known without it (``without_member``); without it,
-    against the member zeroed with the rest held."""
+    one structural effect named before it.  ``known``: the fits without a member
+    (``without_member``), for the contributions."""
     from itertools import combinations
 
     from .verdict import _consistent
