@@ -38,12 +38,13 @@ def contributions(s: Candidate, val: Sequence[Recording], proc: Processing,
                   known: KnownFits | None = None,
                   without: Sequence[Candidate | None] | None = None) -> list[float]:
     """Each structural member's own contribution to the simulated validation outputs, in
-    the gap's units (NMSE): the squared output change from the fitted set to the best fit
-    known without the member (``without_member``): its magnitude set to zero with the rest
-    of the fit held, or -- when ``known`` is given and it fits the train records better --
-    the fit without it (``without[k]`` for member k; a single's is the nominal refit,
-    None; a set member without a known fit is judged held).  Sensor members: the change
-    of the records their correction makes (nominal outputs held)."""
+    the gap's units (NMSE): the squared output change when its magnitude is set to zero,
+    the rest of the fit held -- or, when ``known`` is given and the fit already made
+    without the member fits the train records better than that held model
+    (``without_member``), the larger of that change and the output change from the fit
+    without it (``without[k]`` for member k; a single's is the nominal refit, None; a set
+    member without a known fit is judged held).  Sensor members: the change of the
+    records their correction makes (nominal outputs held)."""
     if s.structure is None or s.theta is None:
         return []
     members = s.members if isinstance(s, SetFit) else [s]
@@ -67,15 +68,13 @@ def contributions(s: Candidate, val: Sequence[Recording], proc: Processing,
             continue
         th = np.array(s.theta, float)
         th[s.structure.free.index(p)] = 0.0
-        r1 = None
-        if known is not None and refs is not None and k < len(refs):
+        d = outs.residuals(th)[0] - r0
+        held = float(d @ d) if np.all(np.isfinite(d)) else math.inf
+        if known is not None and refs is not None and k < len(refs) and held < math.inf:
             r1, _ = known.reference(s, th, refs[k])
-            if r1 is not None and r1.shape != r0.shape:
-                r1 = None
-        if r1 is None:
-            r1 = outs.residuals(th)[0]
-        d = r1 - r0
-        result.append(float(d @ d) if np.all(np.isfinite(d)) else math.inf)
+            if r1 is not None and r1.shape == r0.shape:
+                held = max(held, float((r1 - r0) @ (r1 - r0)))
+        result.append(held)
     return result
 
 

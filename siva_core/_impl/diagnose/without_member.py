@@ -11,15 +11,16 @@ the fitted model differs from the nominal refit by far more than the noise (fres
 0.995; held, its contribution was 0.00015 = 0.57 x the floor, the held model's train
 cost 0.34 against the nominal refit's 0.11 and the set's 0.005).
 
-So "without the member" is the better *fit* of the two models known without it: the
-member zeroed with the rest held, or the fit already made without it -- the nominal refit
-for a single, the set without the member (``set_test.without_fits``) for a set -- judged
-by their cost on the *train* records (never the validation records the contribution is
-measured on).  An element fitted to a residue (the issue's null: a 16 N/m clearance, or
-a candidate that only re-tunes a poorly fitted nominal model) changes the train cost
-little when zeroed, so the held model is the better fit and the contribution is measured
-as before.  No model is fitted here: each known fit is simulated once on the train and
-validation records.
+So "without the member" is also the fit already made without it -- the nominal refit
+for a single, the set without the member (``set_test.without_fits``) for a set -- when
+that fit is the better fit of the *train* records (never the validation records the
+contribution is measured on) than the member zeroed with the rest held; the contribution
+is then the larger of the two output changes (a member whose own term moves the outputs
+shows as before: no verdict the held measure passed is lost).  An element fitted to a
+residue (the issue's null: a 16 N/m clearance, or a candidate that only re-tunes a
+poorly fitted nominal model) changes the train cost little when zeroed, so the held
+model is the better fit and the contribution is the held one.  No model is fitted here:
+each known fit is simulated once on the train and validation records.
 """
 from __future__ import annotations
 
