@@ -9,7 +9,7 @@ import numpy as np
 from siva_core import EFFECTS, Processing, Structure
 from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, augmented,
                                       synthetic_impacts, with_effect)
-from siva_core._impl.diagnose.set_members import contributions
+from siva_core._impl.diagnose.set_members import contributions, floor_for, shown
 from siva_core._impl.diagnose.where import spectral_noise_floor
 from siva_core._impl.diagnose.without_member import KnownFits
 
@@ -68,3 +68,18 @@ def test_an_element_riding_on_a_better_tuned_nominal_does_not_show():
     known = KnownFits(st, poor, train, val, proc)
     (x,) = contributions(tiny, val, proc, known)
     assert x < DiagnoseSettings().contribution_noise * noise
+
+
+def test_the_floor_is_capped_by_what_the_fit_leaves_on_the_validation_records():
+    st, train, val, proc = _records(effect=True)
+    right = _cubic(st, TRUE["c1"], C3, val, proc)
+    right.gap_after = 1e-4
+    assert floor_for(right, 4e-4) == 1e-4 and floor_for(right, 5e-5) == 5e-5
+    assert floor_for(right, None) is None
+    # a contribution of 3e-4: below 2 x a spectral floor of 4e-4, above 2 x the 1e-4 the
+    # fit leaves (chain3:quadratic_spring:m1-ground:large, measured)
+    ok, _ = shown(right, [3e-4], val, proc, 4e-4, DiagnoseSettings())
+    assert ok == [True]
+    right.gap_after = 5e-4
+    ok, _ = shown(right, [3e-4], val, proc, 4e-4, DiagnoseSettings())
+    assert ok == [False]

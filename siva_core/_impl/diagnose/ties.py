@@ -38,7 +38,7 @@ from ..recording import Recording
 from .early_stop import cannot_win
 from .outputs import Progress, _say
 from .results import Candidate
-from .set_members import below_noise, contributions
+from .set_members import below_noise, contributions, floor_for
 from .without_member import KnownFits
 from .set_test import gain_z, residual
 from .settings import FAST, DiagnoseSettings
@@ -129,7 +129,7 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
         ok, _ = decide([win], gap_before, noise_floor, settings)
         contrib = contributions(win, val, proc, known)
         x = contrib[0] if contrib else math.inf
-        if ok is not None and not below_noise(x, noise, settings):
+        if ok is not None and not below_noise(x, floor_for(win, noise), settings):
             new = win
             entry["named"] = {"from": verdict.label(), "to": win.label()}
             _say(progress, f"tie: {win.label()} fits all records best "
