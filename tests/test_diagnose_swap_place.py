@@ -11,7 +11,7 @@ from siva_core._impl.diagnose import DiagnoseSettings
 from siva_core._impl.diagnose.pair_fit import fit_pair
 from siva_core._impl.diagnose.results import Candidate, Location
 from siva_core._impl.diagnose.swap import all_records, member_swaps, swap_members
-from siva_core._impl.effects import EFFECTS
+from siva_core import EFFECTS
 from test_diagnose_search import C2, K3, G, XY, _fitted
 from test_diagnose_sets import two_dof_records
 
