@@ -155,7 +155,7 @@ class DiagnoseSettings:
         consistent and every member above the noise, as the set was judged) is named, as
         the single verdict names the best of its look-alikes ...
     swap_places: ... and this many moves per member, the best by the train cost of
-        their starts: its kind or a look-alike at another place, started at the
+        their starts: its own kind at another place, started at the
         magnitudes whose force along the set's motion there matches the member's; a move
         is named only when it also fits all records (train and validation, with its train
         fit) better than the chosen set (fresh seed 17291: a cubic spring m1-ground named

@@ -89,7 +89,7 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
     """(member index, the set with that member's law swapped or moved, fitted jointly and
     judged on the validation records) for every structural member of ``chosen``: its
     ``swap_kinds`` most promising look-alike kinds at its place, and its
-    ``swap_places`` most promising moves -- its kind or a look-alike at another place of
+    ``swap_places`` most promising moves -- its own kind at another place of
     ``known`` -- by the train cost of their starts (module doc).  ``known``: fitted and
     screened singles, for the places and the laws' shape coefficients."""
     # (a greedy set whose last stage named a sensor fault carries no train cost: its
@@ -112,9 +112,8 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             # as a linear damper where it has one), not another member's
             taken = {o.key for j, o in enumerate(chosen.members) if j != k}
             there = {c.key for c in known if "already represents" not in c.note}
-            targets += [(eff, loc) for loc in _places(m, chosen.members, known)
-                        for eff in [m.effect, *kinds]
-                        if (eff.kind, loc.between) in there - taken]
+            targets += [(m.effect, loc) for loc in _places(m, chosen.members, known)
+                        if (m.effect.kind, loc.between) in there - taken]
         if not targets:
             continue
         motion: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, Any]] = {}
@@ -296,6 +295,7 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     swaps = member_swaps(chosen, structure, train, val, proc, gap_before, before_blocks,
                          settings, known, progress)
     rule["swap_s"] = time.perf_counter() - t0  # CPU share of the swaps (must-show 3)
+    _say(progress, f"swaps: {len(swaps)} fitted in {rule['swap_s']:.1f} s")
     if not swaps:
         return chosen, []
     tried: list[dict[str, Any]] = [{"set": s.label(), "closure": float(s.closure),
