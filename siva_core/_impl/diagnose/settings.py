@@ -154,7 +154,8 @@ class DiagnoseSettings:
         The set with the lowest validation gap among the chosen one and its swaps (each
         consistent and every member above the noise, as the set was judged) is named, as
         the single verdict names the best of its look-alikes ...
-    swap_places: ... and this many moves per member, the best by the train cost of
+    swap_places: ... and this many moves per member (1: each joint refit of a friction
+        set costs 10-20 s on LO-NO; lono:two:0 took 163 CPU s with 2), the best by the train cost of
         their starts: its own kind at another place, started at the
         magnitudes whose force along the set's motion there matches the member's; a move
         is named only when it also fits all records (train and validation, with its train
@@ -234,7 +235,7 @@ class DiagnoseSettings:
     test_blocks: int = 8
     test_z: float = 3.0
     swap_kinds: int = 2
-    swap_places: int = 2
+    swap_places: int = 1
     swap_noise: float = 1.0
     tie_contenders: int = 3
     place_lookalikes: int = 2

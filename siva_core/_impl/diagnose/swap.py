@@ -16,6 +16,15 @@ set with the lowest validation gap among the chosen one and its swaps that pass 
 checks (consistent, every member above the noise), as the single verdict names the best
 of its look-alikes, and lists the laws whose set is within ``swap_noise`` x the noise
 floor of it as that member's rivals (the data cannot separate them).
+
+Members are also *moved* (branch place2): each structural member's own kind at every
+other place the first stage screened (not one the nominal model already holds), started
+at the magnitudes whose force along the set's simulated motion *there* matches the
+member's, the ``swap_places`` best by the train cost of their starts refined jointly as
+above.  A moved set is named only when it also fits all records (train and validation,
+its train fit) better than the chosen set: the same law at two places has the same
+freedom, so the fit to all records compares them fairly (``ties``), and the validation
+records alone can prefer a wrong place that extrapolates better.
 """
 from __future__ import annotations
 
