@@ -154,10 +154,10 @@ class DiagnoseSettings:
         The set with the lowest validation gap among the chosen one and its swaps (each
         consistent and every member above the noise, as the set was judged) is named, as
         the single verdict names the best of its look-alikes ...
-    swap_places: ... and this many moves per member (1: each joint refit of a friction
-        set costs 10-20 s on LO-NO; lono:two:0 took 163 CPU s with 2), the best by the train cost of
-        their starts: its own kind at another place, started at the
-        magnitudes whose force along the set's motion there matches the member's; a move
+    swap_places: ... and this many moves per member, the best by the train cost of
+        their starts: its own kind at another place, started at the magnitudes whose
+        force along the set's motion there matches the member's (1: each joint refit of
+        a friction set costs 10-20 s on LO-NO; lono:two:0 took 163 CPU s with 2); a move
         is named only when it also fits all records (train and validation, with its train
         fit) better than the chosen set (fresh seed 17291: a cubic spring m1-ground named
         in a set for m1-m3).  0 = off.
