@@ -233,6 +233,11 @@ def test_a_clearance_without_a_gap_is_the_same_law_as_a_spring():
     assert not same_law(fitted("clearance", {"k": 210.0, "gap": 0.004}, 0.1), spring)
     verdict, rule = decide([clearance, spring, cubic], 0.34, 2e-4, DiagnoseSettings())
     assert verdict is spring and rule["rival"] == cubic.label() and "same_law" in rule
+    # (branch place2) the same choice for a tentative stage leader (fresh seed 17399)
+    from siva_core._impl.diagnose.verdict import simplest_same
+    assert simplest_same(clearance, [spring, cubic]) is spring
+    assert simplest_same(spring, [clearance, cubic]) is spring
+    assert simplest_same(cubic, [spring, clearance]) is cubic
 
 
 def test_a_faint_gap_is_named_only_when_one_law_closes_most_of_it():

@@ -20,7 +20,7 @@ def wrong_law_set():
     st, train, val, proc, gap, blocks = two_dof_records(
         [("quadratic_damper", ("x", "ground"), {"c2": C2}),
          ("cubic_spring", ("x", "y"), {"k3": K3})], 1.5, (5, 6))
-    s = DiagnoseSettings(fit_nfev=10)
+    s = DiagnoseSettings(fit_nfev=10, swap_places=0)  # law swaps only (places: place2)
     wrong = _fitted(st, "cubic_damper", G, 1.0e4, train, val, proc, gap, blocks, nfev=10)
     mate = _fitted(st, "cubic_spring", XY, K3, train, val, proc, gap, blocks)
     chosen = fit_pair(wrong, mate, st, train, val, proc, gap, blocks, s)

@@ -53,3 +53,28 @@ def test_no_contender_within_the_noise_leaves_the_verdict(places):
     v, vs = break_tie(xy, [xy, yg], [xy, right, yg], train, val, proc, gap, None, 1.0, s,
                       rule)
     assert v is xy and "tie" not in rule
+
+
+def test_look_alikes_within_the_noise_of_the_leader_are_placed_too() -> None:
+    """(branch place2) The lono matrix's cubic damper LO-NO, small: the linear damper
+    NO-ground led, with quadratic and cubic dampers there within the noise floor; the
+    linear damper had no other place, so the cubic damper LO-NO was never fitted."""
+    from siva_core._impl.diagnose.results import Candidate
+    from siva_core._impl.diagnose.ties import tied_look_alikes
+    from siva_core import EFFECTS
+
+    def fit(kind: str, loc: Location, gap: float, cost: float) -> Candidate:
+        return Candidate(EFFECTS[kind], loc, {}, fitted=True, gap_after=gap,
+                         train_cost=cost)
+
+    lead = fit("damper", G, 0.00165, 1.99e-4)
+    others = [lead, fit("quadratic_damper", G, 0.00182, 1.71e-4),
+              fit("cubic_damper", G, 0.00331, 1.70e-4),
+              fit("cubic_spring", G, 0.0017, 1.0e-4),       # not a look-alike
+              fit("cubic_damper", XY, 0.0017, 1.0e-4)]      # not at the leader's place
+    s = DiagnoseSettings()
+    # the floor 0.0018 covers both differences: both kinds, the lower train cost first
+    assert tied_look_alikes(others, lead, 0.0018, s) == ["cubic_damper", "quadratic_damper"]
+    # a floor 0.001: the cubic damper (0.00166 worse) is separated from the leader
+    assert tied_look_alikes(others, lead, 0.001, s) == ["quadratic_damper"]
+    assert tied_look_alikes(others, lead, 0.0018, DiagnoseSettings(place_lookalikes=0)) == []

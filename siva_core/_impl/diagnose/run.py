@@ -22,7 +22,7 @@ from .results import Candidate, Diagnosis
 from .scoring import validation_gap
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
-from .verdict import decide
+from .verdict import decide, simplest_same
 from .sets import worth_pairing, choose_set
 from .without_member import KnownFits
 from .ties import break_tie
@@ -111,7 +111,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                 and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
-            v = rk[0]
+            v = simplest_same(rk[0], [c for c in rk[1:] if np.isfinite(c.closure)
+                                      and not c.reading])
             stages[-1]["tentative"] = v.label()
             if part is not None and not _partial(r, rk, settings):
                 stages[-1]["tentative_large_part"] = part

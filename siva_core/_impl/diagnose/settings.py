@@ -154,6 +154,13 @@ class DiagnoseSettings:
         The set with the lowest validation gap among the chosen one and its swaps (each
         consistent and every member above the noise, as the set was judged) is named, as
         the single verdict names the best of its look-alikes ...
+    swap_places: ... and this many moves per member, the best by the train cost of
+        their starts: its own kind at another place, started at the magnitudes whose
+        force along the set's motion there matches the member's (1: each joint refit of
+        a friction set costs 10-20 s on LO-NO; lono:two:0 took 163 CPU s with 2); a move
+        is named only when it also fits all records (train and validation, with its train
+        fit) better than the chosen set (fresh seed 17291: a cubic spring m1-ground named
+        in a set for m1-m3).  0 = off.
     swap_noise: ... and the laws whose set's gap is within this multiple of the spectral
         noise floor of the named set's are listed as that member's rivals: the data cannot
         separate them (``swap.swap_rivals``).  The floor is the gap a right model leaves:
@@ -166,6 +173,13 @@ class DiagnoseSettings:
         the best fit there is named (``ties``: the same law at a neighbouring place, or a
         one-coefficient look-alike, has the same freedom, so all records compare them
         fairly).  0 = off.
+    place_lookalikes: when the place check has run for the leading structural kind, at
+        most this many look-alike kinds fitted at the leader's place whose validation gap
+        is within ``swap_noise`` x the noise floor of its gap (the data cannot separate
+        the laws there), the lowest by train cost, are fitted at every other place too
+        (``ties.tied_look_alikes``; LO-NO matrix cubic damper LO-NO small: the linear
+        damper NO-ground led and has no other place to fit, so the cubic damper LO-NO was
+        never fitted).  0 = off.
     fit_wave: the candidate fits after the likely leader run in waves of this many; a
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
@@ -221,5 +235,7 @@ class DiagnoseSettings:
     test_blocks: int = 8
     test_z: float = 3.0
     swap_kinds: int = 2
+    swap_places: int = 1
     swap_noise: float = 1.0
     tie_contenders: int = 3
+    place_lookalikes: int = 2

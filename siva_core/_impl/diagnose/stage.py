@@ -26,6 +26,7 @@ from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
 from .pulse_reading import explained_by_reading, shadowed_by_reading
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
+from .ties import tied_look_alikes
 from .verdict import look_alike
 
 Fraction = Callable[[float], None]
@@ -326,6 +327,15 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
             lead = _lead(chosen) or lead
         place = lead.loc.between
         fit_extra(other_places(cands, lead.effect.kind, chosen), lead)
+        # look-alike laws the validation records cannot separate from the leader at its
+        # place are placed by fits too (the leader's own kind may have no other place)
+        for kind in tied_look_alikes(chosen, lead, noise, settings):
+            more = other_places(cands, kind, chosen)
+            if more:
+                _say(progress, f"{kind} {'-'.join(place)}: a look-alike within the noise "
+                               "of the leader, also fitted at "
+                               + ", ".join("-".join(c.loc.between) for c in more))
+                fit_extra(more, lead)
         lead = _lead(chosen) or lead
         if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):

@@ -16,6 +16,15 @@ set with the lowest validation gap among the chosen one and its swaps that pass 
 checks (consistent, every member above the noise), as the single verdict names the best
 of its look-alikes, and lists the laws whose set is within ``swap_noise`` x the noise
 floor of it as that member's rivals (the data cannot separate them).
+
+Members are also *moved* (branch place2): each structural member's own kind at every
+other place the first stage screened (not one the nominal model already holds), started
+at the magnitudes whose force along the set's simulated motion *there* matches the
+member's, the ``swap_places`` best by the train cost of their starts refined jointly as
+above.  A moved set is named only when it also fits all records (train and validation,
+its train fit) better than the chosen set: the same law at two places has the same
+freedom, so the fit to all records compares them fairly (``ties``), and the validation
+records alone can prefer a wrong place that extrapolates better.
 """
 from __future__ import annotations
 
@@ -33,9 +42,10 @@ from ..structure import Structure
 from .law_match import matched_magnitudes, motion_points, place_motion
 from .model_edit import augmented
 from .outputs import Progress, _say
-from .results import Candidate
+from .results import Candidate, Location
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .set_members import contributions, member_coefficients, shown
+from .set_test import residual
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
 
@@ -49,14 +59,14 @@ def _kinds(kind: str, settings: DiagnoseSettings) -> list[Effect]:
             and e.kind != kind and e.family != "sensor"]
 
 
-def _shapes(effect: Effect, m: Candidate, known: Sequence[Candidate], amp: Amplitudes
+def _shapes(effect: Effect, loc: Location, known: Sequence[Candidate], amp: Amplitudes
             ) -> list[dict[str, float]]:
-    """Shape coefficients to start ``effect`` at ``m``'s place from: its single fit's and
+    """Shape coefficients to start ``effect`` at ``loc`` from: its single fit's and
     its screen's there (``known``), then its shape grid on the amplitudes there; only
     complete ones (every coefficient but the magnitude)."""
     out: list[dict[str, float]] = []
     for c in known:
-        if c.effect.kind == effect.kind and c.loc.between == m.loc.between:
+        if c.effect.kind == effect.kind and c.loc.between == loc.between:
             src = c.coefficients if c.fitted and c.coefficients else c.shape
             out.append({k: float(x) for k, x in src.items() if k != effect.magnitude})
     try:
@@ -68,15 +78,29 @@ def _shapes(effect: Effect, m: Candidate, known: Sequence[Candidate], amp: Ampli
     return [s for k, s in enumerate(out) if s not in out[:k]]
 
 
+def _places(m: Candidate, members: Sequence[Candidate], known: Sequence[Candidate]
+            ) -> list[Location]:
+    """The structural places of ``known`` other than ``m``'s, in their first order."""
+    seen = {m.loc.between}
+    out = []
+    for c in known:
+        if c.category == "structure" and c.loc.between not in seen:
+            seen.add(c.loc.between)
+            out.append(c.loc)
+    return out
+
+
 def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording],
                  val: Sequence[Recording], proc: Processing, gap_before: float,
                  before_blocks: np.ndarray, settings: DiagnoseSettings,
                  known: Sequence[Candidate] = (), progress: Progress | None = None
                  ) -> list[tuple[int, SetFit]]:
-    """(member index, the set with that member's law swapped, fitted jointly and judged
-    on the validation records) for every structural member of ``chosen`` and its
-    ``swap_kinds`` most promising look-alike kinds (module doc).  ``known``: fitted and
-    screened singles, for the look-alikes' shape coefficients."""
+    """(member index, the set with that member's law swapped or moved, fitted jointly and
+    judged on the validation records) for every structural member of ``chosen``: its
+    ``swap_kinds`` most promising look-alike kinds at its place, and its
+    ``swap_places`` most promising moves -- its own kind at another place of
+    ``known`` -- by the train cost of their starts (module doc).  ``known``: fitted and
+    screened singles, for the places and the laws' shape coefficients."""
     # (a greedy set whose last stage named a sensor fault carries no train cost: its
     # swaps are then fitted without the early stop)
     if settings.swap_kinds < 1 or chosen.structure is None or chosen.theta is None:
@@ -91,14 +115,27 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
         if m.category != "structure" or k >= len(coeffs) or not coeffs[k]:
             continue
         kinds = _kinds(m.effect.kind, settings)
-        if not kinds:
+        targets = [(eff, m.loc) for eff in kinds]
+        if settings.swap_places > 0:
+            # the screen's candidates there (not one the nominal model already holds,
+            # as a linear damper where it has one), not another member's
+            taken = {o.key for j, o in enumerate(chosen.members) if j != k}
+            there = {c.key for c in known if "already represents" not in c.note}
+            targets += [(m.effect, loc) for loc in _places(m, chosen.members, known)
+                        if (m.effect.kind, loc.between) in there - taken]
+        if not targets:
             continue
-        try:  # the set's motion at m's place
-            d, v = place_motion(chosen.structure, chosen.theta, m.loc, recs, proc)
-            pts = motion_points(d, v)
-        except Exception as exc:  # noqa: BLE001 - no swap for this member
-            _say(progress, f"swap {m.label()}: no motion ({exc})")
+        motion: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        for loc in dict.fromkeys(t[1].between for t in targets):
+            where = next(t[1] for t in targets if t[1].between == loc)
+            try:  # the set's motion at each place
+                d, v = place_motion(chosen.structure, chosen.theta, where, recs, proc)
+                motion[loc] = (d, v, motion_points(d, v))
+            except Exception as exc:  # noqa: BLE001 - no swap to this place
+                _say(progress, f"swap {m.label()}: no motion at {'-'.join(loc)} ({exc})")
+        if m.loc.between not in motion:
             continue
+        pts = motion[m.loc.between][2]
         amp = m.amplitudes or Amplitudes(d_max=pts[1][0], v_max=pts[1][1], d_rms=pts[0][0],
                                          v_rms=pts[0][1])
         # the model without m: the nominal one plus every other structural member, at
@@ -114,16 +151,22 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             start.update({names_o[c]: x for c, x in coeffs[j].items() if c in names_o})
             others.append(replace(o, names=names_o))
         jobs = []
-        for eff in kinds:
+        for eff, loc in targets:
+            if loc.between not in motion:
+                continue
+            d, v, pl = motion[loc.between]
+            at = amp if loc.between == m.loc.between else Amplitudes(
+                d_max=pl[1][0], v_max=pl[1][1], d_rms=pl[0][0], v_rms=pl[0][1])
             starts, aug, names = [], None, {}
-            for shape in _shapes(eff, m, known, amp):
-                mags = matched_magnitudes(m.effect, coeffs[k], eff, shape, d, v, pts)
+            for shape in _shapes(eff, loc, known, at):
+                # m's force along the motion at the new place: the same element moved
+                mags = matched_magnitudes(m.effect, coeffs[k], eff, shape, d, v, pl)
                 if not mags:
                     continue
                 if aug is None:  # the magnitude's scale at the matched force
                     scales = {**{c: max(abs(x), 1e-12) for c, x in shape.items()},
                               eff.magnitude: max(abs(mags[0]), 1e-300)}
-                    aug, names = augmented(base, eff, m.loc, scales)
+                    aug, names = augmented(base, eff, loc, scales)
                 for mag in mags:
                     try:
                         starts.append(aug.vector({**start, **{names[c]: x for c, x in
@@ -138,39 +181,52 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             except Exception:  # noqa: BLE001 - this kind cannot be simulated here
                 continue
             if np.any(np.isfinite(costs)):
-                jobs.append((float(np.nanmin(costs)), eff, aug, names, starts))
+                jobs.append((float(np.nanmin(costs)), eff, loc, aug, names, starts))
         jobs.sort(key=lambda j: j[0])
-        for cost0, eff, aug, names, starts in jobs[:settings.swap_kinds]:
-            fit = _swap_fit(chosen, k, m, others, eff, aug, names, starts, recs, val, proc,
-                            gap_before, before_blocks, settings, progress)
+        here = [j for j in jobs if j[2].between == m.loc.between][:settings.swap_kinds]
+        moved = [j for j in jobs if j[2].between != m.loc.between][:settings.swap_places]
+        for cost0, eff, loc, aug, names, starts in here + moved:
+            # what an element at loc sees (a known single's there) when m is moved
+            amp_at = m.amplitudes if loc.between == m.loc.between else next(
+                (c.amplitudes for c in known if c.loc.between == loc.between
+                 and c.amplitudes is not None), None)
+            fit = _swap_fit(chosen, k, m, others, eff, loc, aug, names, starts, recs, val,
+                            proc, gap_before, before_blocks, settings, progress, amp_at)
             if fit is not None:
                 out.append((k, fit))
     return out
 
 
+def new_label(eff: Effect, loc: Location) -> str:
+    return f"{eff.kind} {'-'.join(loc.between)}"
+
+
 def _swap_fit(chosen: SetFit, k: int, m: Candidate, others: list[Candidate], eff: Effect,
+              loc: Location,
               aug: Structure, names: dict[str, str], starts: list[np.ndarray],
               recs: Sequence[Recording], val: Sequence[Recording], proc: Processing,
               gap_before: float, before_blocks: np.ndarray, settings: DiagnoseSettings,
-              progress: Progress | None) -> SetFit | None:
+              progress: Progress | None, amp: Amplitudes | None = None) -> SetFit | None:
     """One swap's joint refit (``set_fit._refit``, stopped early against the chosen set's
     train cost), judged as every set."""
     stop = set_stop(chosen.train_cost, settings)
     try:
         theta, cost, res = _refit(aug, starts, recs, proc, settings.fit_nfev, stop)
     except Exception as exc:  # noqa: BLE001 - a swap that cannot be fitted is none
-        _say(progress, f"swap {m.label()} -> {eff.kind}: fit failed ({exc})")
+        _say(progress, f"swap {m.label()} -> {new_label(eff, loc)}: fit failed ({exc})")
         return None
     vals = aug.as_dict(theta)
-    new = Candidate(eff, m.loc, {c: vals[p] for c, p in names.items()
+    moved = loc.between != m.loc.between
+    new = Candidate(eff, loc, {c: vals[p] for c, p in names.items()
                                  if c != eff.magnitude}, fitted=True, structure=aug,
                     theta=np.asarray(theta, float), names=dict(names),
-                    amplitudes=m.amplitudes,
+                    amplitudes=amp,
                     coefficients={c: vals[p] for c, p in names.items()},
-                    note=f"law swapped from {m.label()} in the set")
+                    note=(f"moved from {m.label()} in the set" if moved
+                          else f"law swapped from {m.label()} in the set"))
     members = [new if j == k else o for j, o in enumerate(others)]
-    out = SetFit(eff, m.loc, dict(new.shape), structure=aug, names=dict(names),
-                 theta=np.asarray(theta, float), fitted=True, amplitudes=m.amplitudes,
+    out = SetFit(eff, loc, dict(new.shape), structure=aug, names=dict(names),
+                 theta=np.asarray(theta, float), fitted=True, amplitudes=amp,
                  members=members, sensor=chosen.sensor)
     mark_stopped(out, bool(getattr(res, "stopped", False)), cost, chosen.train_cost,
                  settings)
@@ -216,6 +272,21 @@ def swap_rivals(chosen: SetFit, swaps: Sequence[tuple[int, SetFit]], noise: floa
     return (best[1] if best is not None else None), rivals
 
 
+def _moved(s: SetFit, chosen: SetFit) -> bool:
+    """Whether a member of ``s`` stands at a place none of ``chosen``'s members has."""
+    return bool({m.loc.between for m in s.members if m.category == "structure"}
+                - {m.loc.between for m in chosen.members if m.category == "structure"})
+
+
+def all_records(s: SetFit, records: Sequence[Recording], proc: Processing) -> float:
+    """``s``'s residual energy on ``records`` (train and validation) with its train fit;
+    inf when it cannot be simulated.  The same law at two places has the same freedom, so
+    the fit to all records compares them fairly (``ties``); the validation records alone
+    can prefer a wrong place that extrapolates better by what the noise makes."""
+    r = residual(s, records, proc)
+    return float(r[0] @ r[0]) if r is not None else math.inf
+
+
 def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
                   train: Sequence[Recording], val: Sequence[Recording], proc: Processing,
                   gap_before: float, before_blocks: np.ndarray, noise: float | None,
@@ -233,12 +304,14 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     swaps = member_swaps(chosen, structure, train, val, proc, gap_before, before_blocks,
                          settings, known, progress)
     rule["swap_s"] = time.perf_counter() - t0  # CPU share of the swaps (must-show 3)
+    _say(progress, f"swaps: {len(swaps)} fitted in {rule['swap_s']:.1f} s")
     if not swaps:
         return chosen, []
     tried: list[dict[str, Any]] = [{"set": s.label(), "closure": float(s.closure),
                                     "stopped": bool(s.stopped)} for _, s in swaps]
     rule["swaps"] = tried
     contrib: dict[int, list[float]] = {}
+    records = [*train, *val]
 
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
@@ -254,6 +327,13 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
                               + f" against {settings.contribution_noise:g} x the floor "
                               f"{noise:.3g}") + ")")
             return False
+        if _moved(s, chosen):  # a member at another place must fit all records better
+            mine, theirs = all_records(s, records, proc), all_records(chosen, records, proc)
+            entry.update({"all_records": mine, "chosen_all_records": theirs})
+            if not mine < theirs:
+                _say(progress, f"swap {s.label()}: refused (all records {mine:.4g} against "
+                               f"{chosen.label()}'s {theirs:.4g})")
+                return False
         return True
 
     win, rivals = swap_rivals(chosen, swaps, noise, settings, accept)

@@ -42,7 +42,7 @@ from .set_members import below_noise, contributions, floor_for
 from .without_member import KnownFits
 from .set_test import gain_z, residual
 from .settings import FAST, DiagnoseSettings
-from .verdict import decide
+from .verdict import decide, look_alike
 
 
 def contenders(verdict: Candidate, ranking: Sequence[Candidate], noise: float | None,
@@ -63,6 +63,30 @@ def contenders(verdict: Candidate, ranking: Sequence[Candidate], noise: float | 
            and np.isfinite(c.train_cost) and c.gap_after - verdict.gap_after <= margin]
     out.sort(key=lambda c: c.train_cost)
     return out[:settings.tie_contenders]
+
+
+def tied_look_alikes(fitted: Sequence[Candidate], lead: Candidate, noise: float | None,
+                     settings: DiagnoseSettings) -> list[str]:
+    """The look-alike kinds fitted at ``lead``'s place whose validation gap is within
+    ``swap_noise`` x the spectral floor of its gap (1 - ``separation`` of it without a
+    floor), the ``place_lookalikes`` lowest by train cost: the validation records cannot
+    separate their laws from the leader's there, so their places are decided by fits too
+    (``stage._stage``'s place check; the lono matrix's cubic damper LO-NO, small: the
+    linear damper NO-ground led with 0.916, quadratic 0.907 and cubic 0.831 there, and
+    the linear damper had no other place to be fitted at)."""
+    if settings.place_lookalikes < 1:
+        return []
+    if noise is not None and noise > 0:
+        margin = settings.swap_noise * noise
+    else:
+        margin = (1.0 - settings.separation) * lead.gap_after
+    out = [c for c in fitted if c.fitted and not c.stopped and c is not lead
+           and c.loc.between == lead.loc.between and c.effect.kind != lead.effect.kind
+           and c.category == "structure" and look_alike(lead.effect.kind, c.effect.kind)
+           and np.isfinite(c.gap_after) and np.isfinite(c.train_cost)
+           and c.gap_after - lead.gap_after <= margin]
+    out.sort(key=lambda c: c.train_cost)
+    return list(dict.fromkeys(c.effect.kind for c in out))[:settings.place_lookalikes]
 
 
 def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
