@@ -85,10 +85,14 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
     shadowed: dict[tuple[str, tuple[str, str]], bool] = {}
     cur_gap, cur_blocks = gap_before, before_blocks
+    sensor_only = False
     for n in range(n_stages):
         tag = "" if n == 0 else f"stage{n + 1}_"
         lo, hi = 0.2 + 0.8 * n / n_stages, 0.2 + 0.8 * (n + 1) / n_stages
-        rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc, effects, settings,
+        # a stage opened for a sensor fault under an explaining verdict fits sensor faults
+        # only (``residue``): before it, the search ended there
+        rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc,
+                        [] if sensor_only else effects, settings,
                         cur_gap, cur_blocks, settings.sensors and not any(
                             v.category == "sensor" for v in verdicts),
                         progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
@@ -137,7 +141,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         verdicts.append(v)
         _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
                        f"{cur_gap:.4g}")
-        if n + 1 >= n_stages:
+        if n + 1 >= n_stages or sensor_only:
             break
         if _explained(v, settings, noise):
             fault = sensor_residue(v, cur_train, proc, noise, settings) if settings.sensors \
@@ -145,9 +149,11 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             if fault is None:
                 break
             stages[-1]["sensor_residue"] = f"{fault.label()}: {fault.note}"
+            sensor_only = True
             _say(progress, f"stage {n + 1}: {v.label()} leaves {v.gap_after:.3g} "
                            f"(> {settings.noise_factor:g} x the floor {noise:.3g}), and "
-                           f"{fault.label()} lowers it ({fault.note}): a next stage")
+                           f"{fault.label()} lowers it ({fault.note}): a next stage of "
+                           "sensor faults")
         # the next stage starts from this effect's model: converge it first, else the next
         # stage's candidates "close" what a longer fit of this one closes (issue 16: a force
         # gain fitted with the stage budget left half a gap that a coulomb with fc ~ 0, i.e.
