@@ -19,6 +19,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_simulate.py": {"siva_core._impl.simulate": "the numba kernel cache"},
     "tests/test_diagnose_gain_reading.py": {
         "siva_core._impl.diagnose.pulse_reading": "reading_limit on synthetic hits"},
+    "tests/test_diagnose_sensor2.py": {
+        "siva_core._impl.diagnose": "the separation statistic, the sensor residue"},
     "tests/test_diagnose_sensorside.py": {
         "siva_core._impl.diagnose.pulse_reading": "the lopsided gain range, the 1-DOF note",
         "siva_core._impl.diagnose.set_members": "a sensor member's response channel"},

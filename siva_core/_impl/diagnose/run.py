@@ -18,8 +18,10 @@ from .band import fit_nominal_in_band
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .pulse_reading import one_dof_gain_note, reading_limit, shadowed_by_reading
+from .residue import sensor_residue
 from .results import Candidate, Diagnosis
 from .scoring import validation_gap
+from .set_test import one_value_separation
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide, simplest_same
@@ -84,10 +86,14 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     cur_struct, cur_fit, cur_train, cur_val = structure, nominal_fit, list(train), list(val)
     shadowed: dict[tuple[str, tuple[str, str]], bool] = {}
     cur_gap, cur_blocks = gap_before, before_blocks
+    sensor_only = False
     for n in range(n_stages):
         tag = "" if n == 0 else f"stage{n + 1}_"
         lo, hi = 0.2 + 0.8 * n / n_stages, 0.2 + 0.8 * (n + 1) / n_stages
-        rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc, effects, settings,
+        # a stage opened for a sensor fault under an explaining verdict fits sensor faults
+        # only (``residue``): before it, the search ended there
+        rk, cs = _stage(cur_struct, cur_fit, cur_train, cur_val, proc,
+                        [] if sensor_only else effects, settings,
                         cur_gap, cur_blocks, settings.sensors and not any(
                             v.category == "sensor" for v in verdicts),
                         progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
@@ -99,7 +105,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             later += worth_pairing(rk, cur_fit.train_cost, settings)
         floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
                                             if np.isfinite(c.train_cost)])
-        v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts), spectral=noise)
+        v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts), spectral=noise,
+                      separated=one_value_separation(cur_train, cur_val, proc,
+                                                          settings.test_blocks))
         stages.append({"gap_before": cur_gap, "rule": r,
                        "ranking": [c.label() for c in rk],
                        "verdict": v.label() if v is not None else None})
@@ -135,8 +143,19 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         verdicts.append(v)
         _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
                        f"{cur_gap:.4g}")
-        if n + 1 >= n_stages or _explained(v, settings, noise):
+        if n + 1 >= n_stages or sensor_only:
             break
+        if _explained(v, settings, noise):
+            fault = sensor_residue(v, cur_train, proc, noise, settings) if settings.sensors \
+                and not any(x.category == "sensor" for x in verdicts) else None
+            if fault is None:
+                break
+            stages[-1]["sensor_residue"] = f"{fault.label()}: {fault.note}"
+            sensor_only = True
+            _say(progress, f"stage {n + 1}: {v.label()} leaves {v.gap_after:.3g} "
+                           f"(> {settings.noise_factor:g} x the floor {noise:.3g}), and "
+                           f"{fault.label()} lowers it ({fault.note}): a next stage of "
+                           "sensor faults")
         # the next stage starts from this effect's model: converge it first, else the next
         # stage's candidates "close" what a longer fit of this one closes (issue 16: a force
         # gain fitted with the stage budget left half a gap that a coulomb with fc ~ 0, i.e.
@@ -173,7 +192,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     fits = [train_cost] + [c.train_cost for c in ranking if np.isfinite(c.train_cost)]
     where["noise_floor"] = float(min([psd_floor, *fits] if psd_floor is not None else fits))
     where["noise_floor_spectral"] = psd_floor
-    verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings)
+    verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings,
+                            separated=one_value_separation(train, val, proc,
+                                                              settings.test_blocks))
     rule = {**rule, **rule0}
     known = KnownFits(structure, theta, train, val, proc)  # the fits without a member
     verdict, verdicts, set_rule = choose_set(

@@ -24,7 +24,7 @@ removing 99.9 % of the gap scored t = 1.3).
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -123,3 +123,35 @@ def without_fits(members: Sequence[Candidate], singles: dict[tuple, Candidate],
                  and singles[x].gap_after < singles[x].gap_before]
         out.append(min(alone, key=lambda c: c.gap_after, default=None))
     return out
+
+
+def one_value_separation(train: Sequence[Recording], val: Sequence[Recording],
+                         proc: Processing, n_blocks: int
+                         ) -> Callable[[Candidate, Candidate], float]:
+    """The verdict's separation statistic for a sensor fault against a structural rival
+    (``verdict.decide``'s ``separated``): the fault's gain over the rival on the train
+    *and* validation records, in standard errors of the noise (``gain_z``); nan when not
+    applicable.
+
+    A sensor fault has one value and changes its channel by one factor (or shift) at
+    every frequency, the rest of the model as it was; a structural law reshapes the modes
+    of every channel with at least as many coefficients.  Near the noise floor both leave
+    the same noise, so the bare ratio of their validation gaps is pulled towards 1
+    whatever the evidence (fresh seed 17359: an accelerometer gain on acc_m2 alone left
+    0.0112, a spring m2-ground 0.0139 of a gap 0.0189 whose spectral floor is 0.0060:
+    ratio 0.80, refused; on the one validation record the gain's lead is 2.75 standard
+    errors).  Validation guards against a model that fits better for its freedom; a
+    rival with at least the fault's freedom that fits the train records worse has no such
+    excuse, so the train records count as evidence too (as ``ties`` compares laws with as
+    many coefficients on all records).  The residuals compare: a corrected channel's
+    residual in refine's normalisation is ``(g sim - y) / rms(y)``, the raw records'
+    residual of the model read through the fault."""
+    test = BlockTest([*train, *val], proc, n_blocks)
+
+    def z(top: Candidate, rival: Candidate) -> float:
+        if top.category != "sensor" or rival.category == "sensor" \
+                or len(rival.effect.coefficients) < 1:
+            return math.nan
+        return test.z(rival, top)
+
+    return z

@@ -3,7 +3,7 @@ closes a gap that is above the noise."""
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -131,7 +131,8 @@ def simplest_same(top: Candidate, others: Sequence[Candidate]) -> Candidate:
 
 
 def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float | None,
-           settings: DiagnoseSettings, later: bool = False, spectral: float | None = None
+           settings: DiagnoseSettings, later: bool = False, spectral: float | None = None,
+           separated: Callable[[Candidate, Candidate], float] | None = None
            ) -> tuple[Candidate | None, dict[str, Any]]:
     """The documented verdict rule (module doc, step 5); returns (verdict, checks).
 
@@ -144,7 +145,12 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
 
     ``spectral``: the spectral noise floor; the size check also passes when the candidate
     closes ``closure_min`` of the gap above the lower of it and ``noise_floor``
-    (``closes_above_noise``)."""
+    (``closes_above_noise``).
+
+    ``separated``: a statistic of the verdict against its rival on the held-out records
+    (``set_test.one_value_separation``: a sensor fault against a structural law, in
+    standard errors of the noise); the separation check also passes when it is at least
+    ``settings.test_z``."""
     rule: dict[str, Any] = {"closure_min": settings.closure_min,
                             "separation": settings.separation,
                             "record_tolerance": settings.record_tolerance,
@@ -203,21 +209,43 @@ def decide(ranking: Sequence[Candidate], gap_before: float, noise_floor: float |
             noise_floor is None or gap_before > settings.noise_factor * noise_floor)),
         "closure": bool(top.closure >= settings.closure_min or sensor or excess),
         "separation": bool(rival is None or not np.isfinite(rival.gap_after)
-                           or top.gap_after <= settings.separation * rival.gap_after),
+                           or top.gap_after <= settings.separation * rival.gap_after
+                           or _separated_z(top, rival, separated, settings, rule)),
         "consistent": _consistent(top, settings.record_tolerance),
     }
     rule.update({"candidate": top.label(), "rival": rival.label() if rival else None,
                  "checks": checks})
     if all(checks.values()):
+        sz = rule.get("separation_z")
         rule["reason"] = "all checks pass" + (
             f"; the data cannot separate it from {', '.join(r['candidate'] for r in rule['rivals'])}"
-            if rule["rivals"] else "")
+            if rule["rivals"] else "") + (
+            f"; it beats {sz['rival']} (gap {rival.gap_after:.3g} against "
+            f"{top.gap_after:.3g}) by {sz['z']:.1f} standard errors of the noise on the train "
+            "and validation records" if sz is not None and rival is not None
+            and sz["z"] >= settings.test_z else "")
         top.rivals = list(rule["rivals"])
         return top, rule
     failed = [k for k, ok in checks.items() if not ok]
     rule["reason"] = "; ".join(_reasons(top, rival, gap_before, noise_floor, floor,
                                         settings)[k] for k in failed)
     return None, rule
+
+
+def _separated_z(top: Candidate, rival: Candidate,
+                 separated: Callable[[Candidate, Candidate], float] | None,
+                 settings: DiagnoseSettings, rule: dict[str, Any]) -> bool:
+    """The rival is beaten by at least ``test_z`` standard errors of the noise on the
+    train and validation records (``separated``'s statistic; kept in the rule as
+    ``separation_z``)."""
+    if separated is None:
+        return False
+    z = separated(top, rival)
+    if not np.isfinite(z):
+        return False
+    rule["separation_z"] = {"rival": rival.label(), "z": round(float(z), 2),
+                            "test_z": settings.test_z}
+    return bool(z >= settings.test_z)
 
 
 def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
