@@ -78,7 +78,7 @@ def _shapes(effect: Effect, loc: Location, known: Sequence[Candidate], amp: Ampl
     return [s for k, s in enumerate(out) if s not in out[:k]]
 
 
-def _places(m: Candidate, members: Sequence[Candidate], known: Sequence[Candidate]
+def _places(m: Candidate, known: Sequence[Candidate]
             ) -> list[Location]:
     """The structural places of ``known`` other than ``m``'s, in their first order."""
     seen = {m.loc.between}
@@ -121,7 +121,7 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             # as a linear damper where it has one), not another member's
             taken = {o.key for j, o in enumerate(chosen.members) if j != k}
             there = {c.key for c in known if "already represents" not in c.note}
-            targets += [(m.effect, loc) for loc in _places(m, chosen.members, known)
+            targets += [(m.effect, loc) for loc in _places(m, known)
                         if (m.effect.kind, loc.between) in there - taken]
         if not targets:
             continue
@@ -198,6 +198,7 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
 
 
 def new_label(eff: Effect, loc: Location) -> str:
+    """A swapped or moved member's label, before its candidate exists."""
     return f"{eff.kind} {'-'.join(loc.between)}"
 
 
