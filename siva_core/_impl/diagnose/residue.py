@@ -22,24 +22,9 @@ from ..processing import Processing
 from ..recording import Recording
 from .outputs import _Outputs
 from .results import Candidate
+from .screening import jacobian_basis
 from .sensors import scan_sensor, sensor_candidates
 from .settings import DiagnoseSettings
-
-
-def _basis(outs: _Outputs, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The residual at ``theta`` and an orthonormal basis of the Jacobian's columns."""
-    r = outs.residuals(theta)[0]
-    n = theta.size
-    step = 1e-5 * np.where(theta != 0, np.abs(theta), 1.0)
-    thetas = np.repeat(theta[None], n + 1, axis=0)
-    thetas[1:] += np.diag(step)
-    R = outs.residuals(thetas)
-    J = ((R[1:] - R[0]) / step[:, None]).T
-    J[~np.isfinite(J)] = 0.0
-    Jn = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
-    U, s, _ = np.linalg.svd(Jn, full_matrices=False)
-    U = U[:, s > 1e-8 * s.max()] if s.size and s.max() > 0 else U[:, :0]
-    return r, U
 
 
 def sensor_residue(v: Candidate, train: Sequence[Recording], proc: Processing,
@@ -53,7 +38,7 @@ def sensor_residue(v: Candidate, train: Sequence[Recording], proc: Processing,
             or not v.gap_after > settings.noise_factor * noise:
         return None
     try:
-        r, U = _basis(_Outputs(v.structure, train, proc, v.theta), v.theta)
+        r, _, U = jacobian_basis(_Outputs(v.structure, train, proc, v.theta), v.theta)
     except Exception:  # noqa: BLE001 - no residue test: the verdict stands as explained
         return None
     rp = r - U @ (U.T @ r)

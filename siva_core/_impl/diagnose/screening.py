@@ -32,6 +32,25 @@ class _Nominal:
     basis: np.ndarray | None = None      # orthonormal basis of its column space
 
 
+def jacobian_basis(outs: _Outputs, theta: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The residual at ``theta``, the Jacobian by forward differences and an orthonormal
+    basis of its (normalised) columns: what the model's own parameters can re-tune, to
+    be projected out of a residual (screening, ``residue``)."""
+    r = outs.residuals(theta)[0]
+    n = theta.size
+    step = 1e-5 * np.where(theta != 0, np.abs(theta), 1.0)
+    thetas = np.repeat(theta[None], n + 1, axis=0)
+    thetas[1:] += np.diag(step)
+    R = outs.residuals(thetas)
+    J = ((R[1:] - R[0]) / step[:, None]).T
+    J[~np.isfinite(J)] = 0.0
+    Jn = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    U, s, _ = np.linalg.svd(Jn, full_matrices=False)
+    U = U[:, s > 1e-8 * s.max()] if s.size and s.max() > 0 else U[:, :0]
+    return r, J, U
+
+
 def _nominal_context(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
                      proc: Processing) -> tuple[_Nominal, list[np.ndarray]]:
     outs = _Outputs(structure, train, proc, theta)
@@ -63,20 +82,10 @@ def screen(structure: Structure, theta: np.ndarray, train: Sequence[Recording],
     """
     nom, base_out = _nominal_context(structure, theta, train, proc)
     outs, raw = nom.outs, nom.raw
-    r = outs.residuals(theta)[0]
-    cost0 = float(r @ r)
     # nominal Jacobian: projected out, since the nominal model re-tunes itself when an
     # element is added and only what it cannot absorb counts for the candidate
-    n = theta.size
-    step = 1e-5 * np.where(theta != 0, np.abs(theta), 1.0)
-    thetas = np.repeat(theta[None], n + 1, axis=0)
-    thetas[1:] += np.diag(step)
-    R = outs.residuals(thetas)
-    J = ((R[1:] - R[0]) / step[:, None]).T
-    J[~np.isfinite(J)] = 0.0
-    Jn = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
-    U, s, _ = np.linalg.svd(Jn, full_matrices=False)
-    U = U[:, s > 1e-8 * s.max()] if s.size and s.max() > 0 else U[:, :0]
+    r, J, U = jacobian_basis(outs, theta)
+    cost0 = float(r @ r)
     r_perp = r - U @ (U.T @ r)
     nom.jacobian, nom.basis = J, U
     gains = _gain_values(structure, theta)
