@@ -313,6 +313,8 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     rule["swaps"] = tried
     contrib: dict[int, list[float]] = {}
     records = [*train, *val]
+    chosen_all: list[float] = []  # the chosen set on all records, simulated once
+
 
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
@@ -329,7 +331,9 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
                               f"{noise:.3g}") + ")")
             return False
         if _moved(s, chosen):  # a member at another place must fit all records better
-            mine, theirs = all_records(s, records, proc), all_records(chosen, records, proc)
+            if not chosen_all:
+                chosen_all.append(all_records(chosen, records, proc))
+            mine, theirs = all_records(s, records, proc), chosen_all[0]
             entry.update({"all_records": mine, "chosen_all_records": theirs})
             if not mine < theirs:
                 _say(progress, f"swap {s.label()}: refused (all records {mine:.4g} against "
