@@ -27,10 +27,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing as mp
 import os
 import signal
 import sys
 import time
+import traceback
 import warnings
 from pathlib import Path
 from typing import Any
@@ -219,6 +221,64 @@ def summarise(rows: list[dict[str, Any]]) -> None:
                   f"{r['reason']})")
 
 
+def _case(seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """One scenario drawn and diagnosed under the time limits; a failure is a wrong row."""
+    signal.signal(signal.SIGALRM, _timeout)
+    signal.signal(signal.SIGPROF, _timeout)
+    sc = None
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        sc = scenarios.draw(seed, args.force_reading)
+        print(scenarios.describe(sc), flush=True)
+        if args.limit:
+            signal.alarm(int(args.limit))
+        if args.cpu_limit:
+            signal.setitimer(signal.ITIMER_PROF, args.cpu_limit)
+        row = run(sc, args.verbose)
+        _disarm()
+    except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
+        _disarm()
+        if not isinstance(exc, CaseTimeout):
+            traceback.print_exc()
+        row = {"seed": seed, "category": sc.category if sc is not None else "error",
+               "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
+               "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
+               "visibility": sc.visibility if sc else [],
+               **(_after(sc) if sc else {}),
+               "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+               "load1": os.getloadavg()[0], "reason": str(exc)}
+    return row
+
+
+def _case_child(seed: int, args: argparse.Namespace, conn: Any) -> None:
+    conn.send(_case(seed, args))
+    conn.close()
+
+
+def _case_in_child(seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """``_case`` in a forked process of its own. Why: the time limit raises wherever the
+    case happens to be, and a library interrupted mid-way (e.g. numba compiling) can be left
+    broken for every later case in the same process (17454-17456 of the 17400 batch failed
+    to draw after 17452 hit the limit); a fresh process per case has nothing to inherit."""
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_case_child, args=(seed, args, child))
+    t0 = time.perf_counter()
+    proc.start()
+    child.close()
+    try:
+        row = parent.recv()
+    except EOFError:  # the child died without a row (killed, out of memory)
+        row = None
+    proc.join()
+    if row is None:
+        row = {"seed": seed, "category": "error", "expected": [], "named": [],
+               "error": f"the case's process ended with code {proc.exitcode} and no row",
+               "complete": False, "visibility": [], "time_s": time.perf_counter() - t0,
+               "cpu_s": float("nan"), "load1": os.getloadavg()[0], "reason": "process died"}
+    return row
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="2000-2009")
@@ -239,6 +299,9 @@ def main() -> int:
                     help="CPU seconds of the process per case (every thread counted; fair on a "
                          "shared machine, where wall time depends on the others' load); a case "
                          "over it counts as wrong")
+    ap.add_argument("--no-isolate", dest="isolate", action="store_false",
+                    help="run every case in this process (default: a forked process per case, "
+                         "so a case stopped by the time limit leaves nothing behind)")
     args = ap.parse_args()
     if args.add_after:
         add_after(args.add_after.split(","))
@@ -249,28 +312,8 @@ def main() -> int:
         summarise(rows)
         return 0
     rows: list[dict[str, Any]] = []
-    signal.signal(signal.SIGALRM, _timeout)
-    signal.signal(signal.SIGPROF, _timeout)
     for seed in parse_seeds(args.seeds):
-        sc = None
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            sc = scenarios.draw(seed, args.force_reading)
-            print(scenarios.describe(sc), flush=True)
-            if args.limit:
-                signal.alarm(int(args.limit))
-            if args.cpu_limit:
-                signal.setitimer(signal.ITIMER_PROF, args.cpu_limit)
-            row = run(sc, args.verbose)
-            _disarm()
-        except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
-            _disarm()
-            row = {"seed": seed, "category": sc.category if sc is not None else "error",
-                   "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
-                   "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
-                   "visibility": sc.visibility if sc else [],
-                   **(_after(sc) if sc else {}),
-                   "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "load1": os.getloadavg()[0], "reason": str(exc)}
+        row = _case_in_child(seed, args) if args.isolate else _case(seed, args)
         rows.append(row)
         print(f"  -> {'OK ' if row['complete'] else 'NO '} named {row['named']} "
               f"({row['time_s']:.0f} s wall, {row['cpu_s']:.0f} s CPU, load {row['load1']:.1f}; "
