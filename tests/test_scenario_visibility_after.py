@@ -56,3 +56,21 @@ def test_summary_has_the_after_refit_class(capsys):
     assert "after the nominal refit (or sensor only): complete 1 of 1" in out
     assert "after it (or unmeasured): 0 of 1" in out
     assert "after the nominal refit [0.3]" in out
+
+
+def test_a_case_stopped_by_the_cpu_limit_leaves_the_harness_as_it_was():
+    """bench_scenarios runs each case in a forked process: a case stopped by the limit
+    comes back as a wrong row naming the limit, and this process keeps no timer or
+    handler of it (in-process, 17454-17456 failed to draw after 17452 was stopped)."""
+    import argparse
+    import signal
+
+    _, _, bench = _modules()
+    before = signal.getsignal(signal.SIGPROF)
+    args = argparse.Namespace(force_reading="continuous", limit=0, cpu_limit=0.05,
+                              verbose=False)
+    row = bench._case_in_child(17230, args)
+    assert row["seed"] == 17230 and row["complete"] is False
+    assert row["error"].startswith("CaseTimeout") and row["category"] != "error"
+    assert signal.getitimer(signal.ITIMER_PROF) == (0.0, 0.0)
+    assert signal.getsignal(signal.SIGPROF) is before
