@@ -189,6 +189,11 @@ def summarise(rows: list[dict[str, Any]]) -> None:
         print(f"  effects all >= 5 x noise after the nominal refit (or sensor only): "
               f"complete {rate(strong_a)}; with an effect < 5 x after it (or unmeasured): "
               f"{rate(faint_a)}")
+        # per category: the must-show 2 asks the rates of what can be named
+        by_cat = ", ".join(f"{c} {rate([r for r in strong_a if r['category'] == c])}"
+                           for c in ("single", "two", "three")
+                           if any(r["category"] == c for r in strong_a))
+        print(f"    of which, per category: {by_cat}")
     within = [r for r in rows if (r.get("gain_reading") or {}).get("within")]
     if within:
         said = sum(bool(r.get("reading_limit")) for r in within)
