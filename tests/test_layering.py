@@ -79,6 +79,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_swap.py": {"siva_core._impl.diagnose": "look-alike swaps in a set"},
     "tests/test_diagnose_swap_place.py": {"siva_core._impl.diagnose": "member moves in a set"},
     "tests/test_diagnose_ties.py": {"siva_core._impl.diagnose": "ties broken on all records"},
+    "tests/test_diagnose_pairs4.py": {"siva_core._impl.diagnose": "sets' hidden members, ties"},
     "tests/test_diagnose_faint.py": {
         "siva_core._impl.diagnose.verdict": "the size check on the gap above the noise",
         "siva_core._impl.diagnose.results": "candidates built with a seed's numbers"},

@@ -161,3 +161,29 @@ def channel_contribution(s: Candidate, val: Sequence[Recording], proc: Processin
     if raw.shape != r0.shape:
         return math.inf
     return float(np.mean(outs.blocks(raw - r0)[:, dof]))
+
+
+def _holds(structure: Structure | None, m: Candidate) -> bool:
+    """``structure``'s spec has ``m``'s element: its kind, place and parameter names."""
+    if structure is None or m.category != "structure" or not m.names:
+        return False
+    return any(el.get("kind") == m.effect.kind
+               and tuple(el.get("between") or ()) == tuple(m.loc.between)
+               and dict(el.get("params") or {}) == dict(m.names)
+               for el in structure.spec.get("elements") or [])
+
+
+def with_embedded(fits: Sequence[SetFit], verdicts: Sequence[Candidate]) -> list[SetFit]:
+    """Each fitted set with the structural verdicts its model carries as members.
+
+    A later stage's candidate is fitted on the model of the stages before it; paired with
+    a sensor fault (``sets.choose_set``'s ``later``) its set holds the earlier structural
+    verdicts too, and labelled by its two members it named one effect fewer than it
+    fitted and was judged against the wrong "without" sets (fresh seed 17420: "clearance
+    m1-m2 + acc gain" was the greedy three-set, the cubic damper hidden in its model)."""
+    for s in fits:
+        keys = {m.key for m in s.members}
+        hidden = [v for v in verdicts if v.key not in keys and _holds(s.structure, v)]
+        if hidden:
+            s.members = [*hidden, *s.members]
+    return list(fits)

@@ -31,7 +31,7 @@ from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
-from .set_members import contributions, member_coefficients, shown
+from .set_members import contributions, member_coefficients, shown, with_embedded
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
@@ -213,8 +213,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             fits = run_each(lambda ab: pair(ab, against), abs_, worker_count(settings))
             origin = {id(f): ab for f, ab in zip(fits, abs_) if f is not None}
             fitted = [p for p in fits if p is not None]
-            return fitted + refit_stopped(fitted, lambda o: pair(origin[id(o)], math.inf),
-                                          settings)
+            return with_embedded(fitted + refit_stopped(
+                fitted, lambda o: pair(origin[id(o)], math.inf), settings), verdicts)
 
         options += fit_all(pairs)
         # the look-alike second leads, each with the lead's best mates: the members at
