@@ -11,10 +11,12 @@ import numpy as np
 from ..processing import Processing, States
 from ..pulse_kick import sampled_force_acceleration, single_pulse
 from ..recording import Recording
-from ..simulate import (OMEGA_H, REAL_H_FIT, _choose_backend, auto_substeps,
-                        initial_state_and_force, simulate, simulate_split)
+from ..simulate import (OMEGA_H, REAL_H_FIT, _choose_backend, initial_state_and_force,
+                        simulate, simulate_split)
 from ..simulate import grid as _grid
 from ..simulate.grid import adjusted_stage_force
+from ..simulate.substeps import pilot_substeps
+from .pilot_reuse import reuse_pilot
 from . import sample_gain
 from .records import _QTY_ATTR, _extract, _quantities, _Record
 
@@ -87,17 +89,25 @@ class OutputErrorProblem:
             if np.any(rms <= 0):
                 bad = [d for d, r in zip(structure.dofs, rms) if r <= 0]
                 raise ValueError(f"{rec.name}: processed {qtys} of DOF(s) {bad} is identically 0")
+            pilot = None
             if m is None:
                 if theta_ref is None:
                     raise ValueError("substeps='auto' needs theta_ref")
                 th = np.atleast_2d(np.asarray(theta_ref, dtype=float))
-                m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
-                                  omega_h=omega_h, backend=use, interp=interp, real_h=real_h)
+                # the pilot's run at the chosen substeps is kept: ``cost(theta_ref)``
+                # (``output_error``, a candidate's validation gap) simulates those sets
+                # again otherwise (about a third of a 3-DOF diagnosis' simulations)
+                out: list[Any] = []
+                m = pilot_substeps(structure, th, rec.dt, q0, v0, force, len(rec), omega_h,
+                                   use, True, 4096, interp, real_h, out)[0]
+                if out:
+                    sets, Qp, Vp, Ap = out[0]
+                    pilot = (m, th[sets].copy(), Qp, Vp, Ap)
             state_rms = np.concatenate([np.sqrt(np.mean(meas.q ** 2, axis=0)),
                                         np.sqrt(np.mean(meas.v ** 2, axis=0))])
             pulse, hit = single_pulse(force)
             prepared.append(_Record(rec, q0, v0, force, qtys, target, rms, m, state_rms,
-                                    kick_pulse=pulse, hit_dof=hit))
+                                    kick_pulse=pulse, hit_dof=hit, pilot=pilot))
         return cls(structure, prepared, processing, use, interp)
 
     def simulated_states(self, thetas: np.ndarray, k: int,
@@ -198,10 +208,18 @@ class OutputErrorProblem:
                 at[:] = shared[::m2]
                 at[:, :w + 1] = staged[:, ::m2]
                 staged = at
+        plain = (dq0 is None and dv0 is None and force_scale is None and split is None
+                 and force_shift is None and force_spread is None and force_kick is None
+                 and (record is None or record is self.records[k]))
+        reused = reuse_pilot(self, r, np.atleast_2d(thetas), q0, v0) if plain else None
         if split is not None:
             q, v, a = split
             a = sampled_force_acceleration(self.structure, a, force, staged, r.substeps,
                                            force_scale, inplace=True, at_samples=True)
+        elif reused is not None:
+            q, v, a = reused
+            a = sampled_force_acceleration(self.structure, a, force, staged, r.substeps,
+                                           force_scale, inplace=True)
         else:
             sim = simulate(self.structure, thetas, r.rec.time, q0, v0, force,
                            substeps=r.substeps, backend=self.backend, interp=self.interp,

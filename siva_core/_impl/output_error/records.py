@@ -37,6 +37,10 @@ class _Record:
     #: (id of ``kick_pulse``, its processed sample-gain pattern or None), cached by
     #: ``sample_gain.sample_gain_pattern``
     _gain_pattern: tuple[int, np.ndarray | None] | None = None
+    #: (substeps, parameter sets (P, n_free), Q, V, A) the substep pilot of ``build``
+    #: simulated at those substeps: ``OutputErrorProblem`` takes them once for the same
+    #: sets instead of simulating them again (None when there is none, or once taken)
+    pilot: tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def staged(self, interp: str) -> np.ndarray | None:
         """The force on the RK4 stage grid, computed once per (substeps, interp)."""

@@ -43,9 +43,14 @@ def auto_substeps(structure: Any, theta: np.ndarray, dt: float, q0: np.ndarray, 
 def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
                    force: np.ndarray | None, n_samples: int | None, omega_h: float,
                    backend: str, pilot: bool, max_substeps: int, interp: str,
-                   real_h: float | None = None
+                   real_h: float | None = None, pilot_out: list[Any] | None = None
                    ) -> tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
-    """(substeps, the pilot's (Q, V, A) when it covered every set at those substeps)."""
+    """(substeps, the pilot's (Q, V, A) when it covered every set at those substeps).
+
+    ``pilot_out``: a list that receives (rows of ``th``, Q, V, A) of the pilot's last run when
+    it ran at the returned substeps with every one of those sets finite, covering all sets
+    or not: a caller about to simulate the same sets at those substeps
+    (``OutputErrorProblem``) takes them instead of simulating them again."""
     n = structure.n_dof
     # a real-axis rate |lambda| weighs omega_h / real_h of an oscillatory one
     weight = 1.0 if real_h is None else min(1.0, omega_h / real_h)
@@ -63,6 +68,7 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
     Q0 = np.broadcast_to(np.asarray(q0, dtype=float), (th.shape[0], n))[idx].copy()
     V0 = np.broadcast_to(np.asarray(v0, dtype=float), (th.shape[0], n))[idx].copy()
     covers_all = len(idx) == th.shape[0]
+    sets = np.asarray(idx, dtype=int)  # the pilot's sets, as rows of th
     prev: list[np.ndarray] = []  # each pilot set's first non-finite sample, earlier runs
     for _ in range(6):
         Q, V, A = run(structure, sub, dt, n_samples, Q0, V0, force, m, backend, interp)
@@ -73,7 +79,7 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
                 keep = ~esc
                 if not np.any(keep):
                     break
-                sub, Q0, V0 = sub[keep], Q0[keep], V0[keep]
+                sub, Q0, V0, sets = sub[keep], Q0[keep], V0[keep], sets[keep]
                 prev = [p[keep] for p in prev]  # the others run again at this m
                 covers_all = False
                 continue
@@ -93,6 +99,8 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
                                  np.moveaxis(V[:, rows], 1, 0), weight))
         m_new = _steps_for(rho, dt, omega_h, max_substeps)
         if m_new <= m:
+            if pilot_out is not None:
+                pilot_out.append((sets, Q, V, A))
             return m, ((Q, V, A) if covers_all else None)
         if m_new <= 2 * m or m_new >= max_substeps:
             return m_new, None  # the pilot's amplitudes are close enough to trust
