@@ -44,3 +44,19 @@ def half_sine_hit(width_samples: float, phase: float) -> Recording:
     x = (t - (40 + phase) / fs) / (width_samples / fs)
     f = np.where((x >= 0) & (x <= 1), 100.0 * np.sin(np.pi * np.clip(x, 0, 1)), 0.0)
     return Recording(t, {"force_x": f, "acc_x": np.zeros(len(t))}, "hit")
+
+
+#: the LO-NO rig's nominal values (benchmarks/matrix.py)
+LONO = {"b1": 3.8405, "b2": 0.78563, "k1": 19273.0, "k2": 1947.6, "alpha": 2.7641e7,
+        "beta": 2.0012}
+
+
+def lono_hit(dofs: list[str], peak: float, duration_s: float, fs: float = 2048.0
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(t, F): a 6.2 ms half-sine hammer pulse of ``peak`` N on NO at 0.1 s, the LO-NO
+    rig's columns in ``dofs`` order."""
+    t = np.arange(int(duration_s * fs)) / fs
+    F = np.zeros((len(t), len(dofs)))
+    on = (t >= 0.1) & (t <= 0.1 + 6.2e-3)
+    F[on, dofs.index("NO")] = peak * np.sin(np.pi * (t[on] - 0.1) / 6.2e-3)
+    return t, F

@@ -8,18 +8,13 @@ import pytest
 
 from siva_core import OutputErrorProblem, Recording, Structure, simulate, with_effect
 
-LONO = {"b1": 3.8405, "b2": 0.78563, "k1": 19273.0, "k2": 1947.6, "alpha": 2.7641e7,
-        "beta": 2.0012}
+from synthetic import LONO, lono_hit
 
 
 def _case(lono_model: Structure) -> tuple[Structure, np.ndarray, Recording]:
     gen = with_effect(lono_model, "cubic_damper", ("LO", "NO"), {"c3": 3.0e3})
     theta = gen.vector(LONO)
-    fs = 2048.0
-    t = np.arange(int(0.5 * fs)) / fs
-    F = np.zeros((len(t), 2))
-    on = (t >= 0.1) & (t <= 0.1 + 6.2e-3)
-    F[on, gen.dofs.index("NO")] = 20.0 * np.sin(np.pi * (t[on] - 0.1) / 6.2e-3)
+    t, F = lono_hit(gen.dofs, 20.0, 0.5)
     z = np.zeros(2)
     a = simulate(gen, theta, t, z, z, F, substeps="auto").a
     rec = Recording.from_columns({"time": t, "acc_LO": a[:, 0], "acc_NO": a[:, 1],

@@ -9,20 +9,14 @@ from siva_core import (OutputErrorProblem, Recording, Structure, auto_substeps, 
                        with_effect)
 from siva_core._impl.simulate.substeps import REAL_H_FIT
 
-#: the LO-NO rig's nominal values (benchmarks/matrix.py) and its large coulomb at NO-ground
-LONO = {"b1": 3.8405, "b2": 0.78563, "k1": 19273.0, "k2": 1947.6, "alpha": 2.7641e7,
-        "beta": 2.0012}
-
+from synthetic import LONO, lono_hit
 
 def _friction_case(lono_model: Structure, peak: float = 450.0
                    ) -> tuple[Structure, np.ndarray, np.ndarray, np.ndarray]:
+    """The LO-NO rig with its large coulomb at NO-ground, hit once."""
     gen = with_effect(lono_model, "coulomb", ("NO", "ground"), {"fc": 1.26})
     theta = gen.vector(LONO)
-    fs = 2048.0
-    t = np.arange(int(1 * fs)) / fs
-    F = np.zeros((len(t), 2))
-    on = (t >= 0.1) & (t <= 0.1 + 6.2e-3)
-    F[on, gen.dofs.index("NO")] = peak * np.sin(np.pi * (t[on] - 0.1) / 6.2e-3)
+    t, F = lono_hit(gen.dofs, peak, 1.0)
     return gen, theta, t, F
 
 
