@@ -11,11 +11,10 @@ import numpy as np
 from ..processing import Processing, States
 from ..pulse_kick import sampled_force_acceleration, single_pulse
 from ..recording import Recording
-from ..simulate import (OMEGA_H, REAL_H_FIT, _choose_backend, initial_state_and_force,
-                        simulate, simulate_split)
+from ..simulate import (OMEGA_H, REAL_H_FIT, _choose_backend, auto_substeps,
+                        initial_state_and_force, simulate, simulate_split)
 from ..simulate import grid as _grid
 from ..simulate.grid import adjusted_stage_force
-from ..simulate.substeps import pilot_substeps
 from .pilot_reuse import reuse_pilot
 from . import sample_gain
 from .records import _QTY_ATTR, _extract, _quantities, _Record
@@ -98,8 +97,9 @@ class OutputErrorProblem:
                 # (``output_error``, a candidate's validation gap) simulates those sets
                 # again otherwise (about a third of a 3-DOF diagnosis' simulations)
                 out: list[Any] = []
-                m = pilot_substeps(structure, th, rec.dt, q0, v0, force, len(rec), omega_h,
-                                   use, True, 4096, interp, real_h, out)[0]
+                m = auto_substeps(structure, th, rec.dt, q0, v0, force, n_samples=len(rec),
+                                  omega_h=omega_h, backend=use, interp=interp, real_h=real_h,
+                                  pilot_out=out)
                 if out:
                     sets, Qp, Vp, Ap = out[0]
                     pilot = (m, th[sets].copy(), Qp, Vp, Ap)

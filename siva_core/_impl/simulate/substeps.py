@@ -25,7 +25,7 @@ def auto_substeps(structure: Any, theta: np.ndarray, dt: float, q0: np.ndarray, 
                   force: np.ndarray | None, *, n_samples: int | None = None,
                   omega_h: float = OMEGA_H, backend: str = "numpy", pilot: bool = True,
                   max_substeps: int = 4096, interp: str = "linear",
-                  real_h: float | None = None) -> int:
+                  real_h: float | None = None, pilot_out: list[Any] | None = None) -> int:
     """Substeps per sample so that rho*h <= omega_h, rho the fastest rate of the model.
 
     rho starts from the linearisation about rest (the structure's linear modes, batched over
@@ -34,10 +34,12 @@ def auto_substeps(structure: Any, theta: np.ndarray, dt: float, q0: np.ndarray, 
     (the first and the extremes of each parameter) gives the amplitudes actually reached,
     and the tangent stiffness/damping along it bounds rho there.  Bounded by
     ``max_substeps``.  ``real_h``: see ``REAL_H_FIT`` (each eigenvalue then needs
-    |Im lambda| h <= omega_h and |lambda| h <= real_h).
+    |Im lambda| h <= omega_h and |lambda| h <= real_h).  ``pilot_out``: see
+    ``pilot_substeps``.
     """
     return pilot_substeps(structure, np.atleast_2d(theta), dt, q0, v0, force, n_samples,
-                          omega_h, backend, pilot, max_substeps, interp, real_h)[0]
+                          omega_h, backend, pilot, max_substeps, interp, real_h,
+                          pilot_out)[0]
 
 
 def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
