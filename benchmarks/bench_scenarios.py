@@ -26,7 +26,6 @@ seeds never run before the rules were frozen.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import multiprocessing as mp
 import os
@@ -256,17 +255,33 @@ def _case(seed: int, args: argparse.Namespace) -> dict[str, Any]:
     return row
 
 
-def _import_all() -> None:
-    """Every siva_core module imported before the first case is forked. Why: a case's
-    process imports what it needs late, from the files as they are then; a commit during a
-    batch once gave the cases after it a new module beside an old one it calls (17470-17489
-    and 17505-17519 of the 17460 batch: the nominal fit failed on a keyword the old module
-    lacked). Imported here, every case runs the code the batch started with."""
+def _preload() -> list[str]:
+    """Every siva_core module and the benchmark's own, for the case server to import once.
+    Why: a case's process imports what it needs late, from the files as they are then; a
+    commit during a batch once gave the cases after it a new module beside an old one it
+    calls (17470-17489 and 17505-17519 of the 17460 batch: the nominal fit failed on a
+    keyword the old module lacked). Preloaded, every case runs the code the batch started
+    with."""
     import pkgutil
 
     import siva_core
-    for mod in pkgutil.walk_packages(siva_core.__path__, "siva_core."):
-        importlib.import_module(mod.name)
+    return ["siva_core", *(m.name for m in pkgutil.walk_packages(siva_core.__path__,
+                                                                  "siva_core.")),
+            "scenarios", "visibility_after", "bench_scenarios"]
+
+
+_CASES: Any = None  # the multiprocessing context whose server forks the cases
+
+
+def _cases_context() -> Any:
+    """A forkserver context, its server started once with ``_preload``'s modules: cases
+    are forked from a process that has run nothing (GNU OpenMP terminates a child forked
+    from a process that used its threads, as a test suite's process has)."""
+    global _CASES
+    if _CASES is None:
+        _CASES = mp.get_context("forkserver")
+        _CASES.set_forkserver_preload(_preload())
+    return _CASES
 
 
 def _case_child(seed: int, args: argparse.Namespace, conn: Any) -> None:
@@ -275,11 +290,11 @@ def _case_child(seed: int, args: argparse.Namespace, conn: Any) -> None:
 
 
 def _case_in_child(seed: int, args: argparse.Namespace) -> dict[str, Any]:
-    """``_case`` in a forked process of its own. Why: the time limit raises wherever the
-    case happens to be, and a library interrupted mid-way (e.g. numba compiling) can be left
+    """``_case`` in a process of its own, forked from the case server. Why: the time limit
+    raises wherever the case happens to be, and a library interrupted mid-way (e.g. numba compiling) can be left
     broken for every later case in the same process (17454-17456 of the 17400 batch failed
     to draw after 17452 hit the limit); a fresh process per case has nothing to inherit."""
-    ctx = mp.get_context("fork")
+    ctx = _cases_context()
     parent, child = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_case_child, args=(seed, args, child))
     t0 = time.perf_counter()
@@ -319,8 +334,9 @@ def main() -> int:
                          "shared machine, where wall time depends on the others' load); a case "
                          "over it counts as wrong")
     ap.add_argument("--no-isolate", dest="isolate", action="store_false",
-                    help="run every case in this process (default: a forked process per case, "
-                         "so a case stopped by the time limit leaves nothing behind)")
+                    help="run every case in this process (default: a process per case, "
+                         "forked from a server that imported every module at the start, so "
+                         "a case stopped by the time limit leaves nothing behind)")
     args = ap.parse_args()
     if args.add_after:
         add_after(args.add_after.split(","))
@@ -331,8 +347,6 @@ def main() -> int:
         summarise(rows)
         return 0
     rows: list[dict[str, Any]] = []
-    if args.isolate:
-        _import_all()
     for seed in parse_seeds(args.seeds):
         row = _case_in_child(seed, args) if args.isolate else _case(seed, args)
         rows.append(row)
