@@ -291,9 +291,10 @@ def _case_child(seed: int, args: argparse.Namespace, conn: Any) -> None:
 
 def _case_in_child(seed: int, args: argparse.Namespace) -> dict[str, Any]:
     """``_case`` in a process of its own, forked from the case server. Why: the time limit
-    raises wherever the case happens to be, and a library interrupted mid-way (e.g. numba compiling) can be left
+    raises wherever the case happens to be, and a library interrupted mid-way can be left
     broken for every later case in the same process (17454-17456 of the 17400 batch failed
-    to draw after 17452 hit the limit); a fresh process per case has nothing to inherit."""
+    to draw after 17452 hit the limit; which library was not pinned down); a fresh process
+    per case has nothing to inherit."""
     ctx = _cases_context()
     parent, child = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_case_child, args=(seed, args, child))
