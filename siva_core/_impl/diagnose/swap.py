@@ -315,7 +315,6 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     records = [*train, *val]
     chosen_all: list[float] = []  # the chosen set on all records, simulated once
 
-
     def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
         contrib[id(s)] = contributions(s, val, proc)
         low = not all(shown(s, contrib[id(s)], val, proc, noise, settings)[0])
