@@ -43,6 +43,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.diagnose": "a member's contribution against the fits without it"},
     "tests/test_diagnose_elimination.py": {"siva_core._impl.diagnose": "the backward step"},
     "tests/test_diagnose_sets.py": {"siva_core._impl.diagnose": "sets of effects"},
+    "tests/test_diagnose_weak_lead.py": {"siva_core._impl.diagnose": "the weak lead's places"},
     "tests/test_diagnose_triples.py": {"siva_core._impl.diagnose": "sets of three effects"},
     "tests/test_diagnose_set_test.py": {"siva_core._impl.diagnose": "the held-out set test"},
     "tests/test_diagnose_search.py": {"siva_core._impl.diagnose": "the widened set search",

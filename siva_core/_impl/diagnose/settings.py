@@ -83,6 +83,10 @@ class DiagnoseSettings:
         value lowers the nominal train cost by at least this share.
     place_check: once a structural kind leads after the fits, fit it at every other place
         too (the place is decided by fits, not by the screen; False trades that for time).
+    weak_places: a leader closing less than ``step_min`` of a gap at least ``faint_noise``
+        x the noise floor, while removing more than ``noise_factor`` x the floor, has its
+        kind fitted at this many other places, best screened first (``weak_lead``: two
+        effects of one kind, none closing much alone).  0 = off.
     kind_check: when the leading structural effect closes less than this share of the gap,
         its look-alike kinds (restoring or dissipating, like it) are fitted at its place
         too (a law that leaves part of the gap may be a look-alike of the true one) ...
@@ -213,6 +217,7 @@ class DiagnoseSettings:
     step_min: float = 0.25
     sensor_gain: float = 0.2
     place_check: bool = True
+    weak_places: int = 3
     kind_check: float = 0.95
     kind_check_noise: float = 3.0
     backward: bool = True

@@ -28,6 +28,7 @@ from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
 from .ties import tied_look_alikes
 from .verdict import look_alike
+from .weak_lead import weak_lead, weak_lead_places
 
 Fraction = Callable[[float], None]
 #: (leader's train cost, leader) a wave of fits is stopped against
@@ -340,6 +341,15 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):
                 fit_extra([c], lead)
+    elif settings.place_check and weak_lead(lead, gap_before, noise, settings):
+        # a lead closing little of a gap many times the noise: its kind at other places
+        # too (``weak_lead``: two effects of one kind, none closing much alone)
+        more = weak_lead_places(cands, lead, chosen, settings)
+        if more:
+            _say(progress, f"{lead.label()}: a weak lead (closure {lead.closure:.3f}), "
+                           "its kind also fitted at "
+                           + ", ".join("-".join(c.loc.between) for c in more))
+            fit_extra(more, lead)
     # the other role's best fit, at its other places too, when the leader leaves part of
     # a gap above the noise (``noise_factor``, as the pair search): a second effect of
     # the other role (a damper beside a spring) has its place decided by fits as the
