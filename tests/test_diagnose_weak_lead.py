@@ -7,7 +7,7 @@ import math
 
 from siva_core import EFFECTS
 from siva_core._impl.diagnose import Candidate, DiagnoseSettings, Location
-from siva_core._impl.diagnose.weak_lead import weak_lead, weak_lead_places
+from siva_core._impl.diagnose.weak_lead import tentative_lead, weak_lead, weak_lead_places
 
 PLACES = [Location(0, -1, ("m1", "ground")), Location(1, -1, ("m2", "ground")),
           Location(0, 1, ("m1", "m2"))]
@@ -44,3 +44,22 @@ def test_weak_lead_places_are_the_kind_elsewhere_best_screened_first() -> None:
     more = weak_lead_places(cands, lead, [lead], DiagnoseSettings())
     assert [c.loc.between for c in more] == [("m1", "m2"), ("m1", "ground")]
     assert all(c.effect.kind == "coulomb" for c in more)
+
+
+def _fit(kind: str, loc: Location, gap_after: float, train_cost: float) -> Candidate:
+    c = _cand(kind, loc, 0.1, gap_after=gap_after, gap_before=0.0995)
+    c.fitted, c.train_cost = True, train_cost
+    return c
+
+
+def test_tentative_lead_breaks_a_validation_tie_by_train_cost() -> None:
+    s = DiagnoseSettings()
+    clearance = _fit("clearance", PLACES[2], 0.0790, 0.0789)   # 17485's numbers
+    damper = _fit("cubic_damper", PLACES[0], 0.0811, 0.0228)
+    assert tentative_lead([clearance, damper], 0.0020, s) is damper   # 1.1 x the floor apart
+    assert tentative_lead([clearance, damper], 0.0010, s) is clearance  # 2.1 x: no tie
+    assert tentative_lead([clearance, damper], None, s) is clearance
+    # more coefficients than the leader: its lower train cost may be its freedom
+    spring = _fit("spring", PLACES[0], 0.0795, 0.05)
+    two = _fit("clearance", PLACES[1], 0.0800, 0.01)
+    assert tentative_lead([spring, two], 0.0020, s) is spring

@@ -28,6 +28,7 @@ from .verdict import decide, simplest_same
 from .sets import worth_pairing, choose_set
 from .without_member import KnownFits
 from .ties import break_tie
+from .weak_lead import tentative_lead
 from .where import _explain, spectral_noise_floor, where_analysis
 
 from .stage import (Fraction, _explained, _partial, _polish, _refresh, _stage,
@@ -119,8 +120,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                 and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
-            v = simplest_same(rk[0], [c for c in rk[1:] if np.isfinite(c.closure)
-                                      and not c.reading])
+            first = tentative_lead(rk, noise, settings)  # ties on val: by train cost
+            v = simplest_same(first, [c for c in rk if c is not first
+                                      and np.isfinite(c.closure) and not c.reading])
             stages[-1]["tentative"] = v.label()
             if part is not None and not _partial(r, rk, settings):
                 stages[-1]["tentative_large_part"] = part

@@ -45,3 +45,29 @@ def weak_lead_places(cands: Sequence[Candidate], lead: Candidate,
                      ) -> list[Candidate]:
     """The lead's kind at the ``weak_places`` best-screened places not fitted yet."""
     return other_places(cands, lead.effect.kind, chosen)[:settings.weak_places]
+
+
+def tentative_lead(ranking: Sequence[Candidate], noise: float | None,
+                   settings: DiagnoseSettings) -> Candidate:
+    """The first effect kept tentatively for the next stage: the best by validation gap,
+    or -- among the fitted structural singles with no more coefficients whose validation
+    gap is within ``noise_factor`` x the noise floor of its (the held-out records cannot
+    rank them: ``sets.better`` counts a gain only above that margin) -- the one with the
+    lowest train cost.  With a second
+    effect missing, a single's validation gap mostly measures how the missing effect
+    extrapolates to the validation amplitudes, while the train cost, on the same records
+    for all of them and at no more freedom, measures what it explains (fresh seed 17485:
+    clearance m1-m3 left 0.0790 and the true cubic damper m1-ground 0.0811, 1.1 x the
+    floor 0.0020 apart, but the damper lowered the train cost 0.083 -> 0.023 and the
+    clearance to 0.079 only; the next stage was built on the clearance)."""
+    top = ranking[0]
+    if top.category != "structure" or noise is None or not noise > 0 \
+            or not np.isfinite(top.gap_after):
+        return top
+    n = len(top.effect.coefficients)
+    tied = [c for c in ranking if c.category == "structure" and c.fitted and not c.reading
+            and not c.stopped and np.isfinite(c.gap_after) and np.isfinite(c.train_cost)
+            and len(c.effect.coefficients) <= n
+            and c.gap_after - top.gap_after <= settings.noise_factor * noise]
+    best = min(tied, key=lambda c: c.train_cost, default=top)
+    return best if best.train_cost < top.train_cost else top
