@@ -112,8 +112,9 @@ def undecided_places(more: Sequence[Candidate], fitted: Sequence[Candidate],
     leader's law fitted there, within the same tie margin.  A place where the leader's
     law is separated even after that margin is decided, and fitting the look-alike
     there cannot rival the leader (measured, fresh seed 17480, 4-DOF frame: the
-    quadratic damper m2-ground led at 0.0303; at the 9 other places it left 0.040-0.085,
-    the cubic damper there 0.044-0.085 with the same order; 9 fits of ~11 s each).
+    quadratic damper m2-ground led at 0.0303, floor 0.0085; at the 9 other places it left
+    0.040-0.085, and the cubic damper fitted there was at most 0.005 below it, within
+    the margin; 9 fits of ~11 s each).
     Places where the leader's law was not fitted, or came within the margin, are kept."""
     if noise is not None and noise > 0:
         margin = settings.swap_noise * noise
