@@ -55,11 +55,23 @@ def step_cpu(prof: cProfile.Profile) -> dict[str, dict[str, float]]:
     return out
 
 
+def compile_cpu(prof: cProfile.Profile) -> float:
+    """Inclusive CPU of numba compiling kernels during the run (a new structure signature
+    -- every candidate place of a fresh scenario -- compiles its RK4 kernel once, then it
+    is cached on disk): a before/after comparison run second sees a warm cache, so this
+    share is reported apart (``cpu_s_no_compile``)."""
+    return round(sum(ct for (file, _line, name), (_cc, _n, _tt, ct, _callers)
+                     in pstats.Stats(prof).stats.items()  # type: ignore[attr-defined]
+                     if name == "_compile_for_args" and "numba" in Path(file).parts), 2)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", required=True)
     ap.add_argument("--json", metavar="FILE")
     ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--pstats", metavar="PREFIX",
+                    help="also dump each seed's profile to PREFIX<seed>.pstats")
     ap.add_argument("--force-reading", choices=scenarios.FORCE_READINGS, default="continuous",
                     help="as bench_scenarios.py's (linear: the batches reported before)")
     args = ap.parse_args()
@@ -76,15 +88,19 @@ def main() -> int:
                          progress=(lambda m: print("   ", m, flush=True))
                          if args.verbose else None)
             prof.disable()
+        if args.pstats:
+            prof.dump_stats(f"{args.pstats}{seed}.pstats")
         out = d.to_json()
         row = {"seed": seed, "describe": scenarios.describe(sc),
                "named": sorted(f"{v['kind']} {'-'.join(v['between'])}"
                                for v in out["verdicts"]),
                "reason": out["rule"].get("reason"), "load1": os.getloadavg()[0],
                "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
-               "steps": step_cpu(prof)}
+               "steps": step_cpu(prof), "numba_compile_s": compile_cpu(prof)}
+        row["cpu_s_no_compile"] = row["cpu_s"] - row["numba_compile_s"]
         rows.append(row)
-        print(json.dumps({k: row[k] for k in ("seed", "named", "cpu_s", "wall_s")}), flush=True)
+        print(json.dumps({k: row[k] for k in ("seed", "named", "cpu_s", "numba_compile_s",
+                                                   "cpu_s_no_compile", "wall_s")}), flush=True)
         print("   CPU s per step:", {k: v["cpu_s"] for k, v in row["steps"].items()}, flush=True)
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1, default=float) + "\n")

@@ -78,3 +78,34 @@ def test_look_alikes_within_the_noise_of_the_leader_are_placed_too() -> None:
     # a floor 0.001: the cubic damper (0.00166 worse) is separated from the leader
     assert tied_look_alikes(others, lead, 0.001, s) == ["quadratic_damper"]
     assert tied_look_alikes(others, lead, 0.0018, DiagnoseSettings(place_lookalikes=0)) == []
+
+
+def test_look_alikes_skip_places_the_leaders_law_already_lost() -> None:
+    """(branch speed5) A look-alike is fitted at another place only where the leader's own
+    law, fitted there, is not separated from the leader beyond the tie margin: fresh
+    seed 17480's quadratic damper m2-ground led at 0.0303 (floor 0.0085); the places
+    where it left 0.04 stay, those where it left 0.07-0.085 are decided."""
+    from siva_core._impl.diagnose.results import Candidate
+    from siva_core._impl.diagnose.ties import undecided_places
+    from siva_core import EFFECTS
+
+    ZG = Location(2, -1, ("z", "ground"))
+
+    def fit(kind: str, loc: Location, gap: float, cost: float,
+            fitted: bool = True) -> Candidate:
+        return Candidate(EFFECTS[kind], loc, {}, fitted=fitted, gap_after=gap,
+                         train_cost=cost)
+
+    lead = fit("quadratic_damper", G, 0.0303, 0.0164)
+    near = fit("quadratic_damper", XY, 0.0396, 0.0171)   # within margin: kept
+    far = fit("quadratic_damper", YG, 0.0725, 0.0261)    # separated: decided
+    more = [fit("cubic_damper", XY, 0, 0, False), fit("cubic_damper", YG, 0, 0, False),
+            fit("cubic_damper", ZG, 0, 0, False)]        # z-ground: never fitted, kept
+    s = DiagnoseSettings()
+    kept = undecided_places(more, [lead, near, far], lead, 0.0085, s)
+    assert [c.loc.between for c in kept] == [XY.between, ZG.between]
+    # a floor so large that every difference is within it: every place stays
+    assert len(undecided_places(more, [lead, near, far], lead, 0.05, s)) == 3
+    # a far place whose train fit rivals the leader's stays too
+    rival = fit("quadratic_damper", YG, 0.0725, 0.0120)
+    assert len(undecided_places(more, [lead, near, rival], lead, 0.0085, s)) == 3

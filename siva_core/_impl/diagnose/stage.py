@@ -26,7 +26,7 @@ from .screening import (_strength, ee_screen, other_kinds, other_places, screen,
 from .pulse_reading import explained_by_reading, shadowed_by_reading
 from .sensors import fit_sensor, scan_sensor, sensor_candidates, sensor_fits
 from .settings import DiagnoseSettings
-from .ties import tied_look_alikes
+from .ties import tied_look_alikes, undecided_places
 from .verdict import look_alike
 from .weak_lead import weak_lead, weak_lead_places
 
@@ -331,7 +331,11 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         # look-alike laws the validation records cannot separate from the leader at its
         # place are placed by fits too (the leader's own kind may have no other place)
         for kind in tied_look_alikes(chosen, lead, noise, settings):
-            more = other_places(cands, kind, chosen)
+            every = other_places(cands, kind, chosen)
+            more = undecided_places(every, chosen, lead, noise, settings)
+            if len(more) < len(every):
+                _say(progress, f"{kind}: not fitted at {len(every) - len(more)} place(s) "
+                               f"where {lead.effect.kind} was separated from the leader")
             if more:
                 _say(progress, f"{kind} {'-'.join(place)}: a look-alike within the noise "
                                "of the leader, also fitted at "

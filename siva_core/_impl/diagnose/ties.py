@@ -95,6 +95,44 @@ def tied_look_alikes(fitted: Sequence[Candidate], lead: Candidate, noise: float 
     return list(dict.fromkeys(c.effect.kind for c in out))[:settings.place_lookalikes]
 
 
+def undecided_places(more: Sequence[Candidate], fitted: Sequence[Candidate],
+                     lead: Candidate, noise: float | None, settings: DiagnoseSettings
+                     ) -> list[Candidate]:
+    """The look-alike candidates of ``more`` (a kind tied with ``lead`` at its place, to be
+    fitted at other places) whose place the fits of the leader's own law there have not
+    decided against: kept unless ``lead``'s kind was fitted at that place and its gap
+    there, less the tie margin (``swap_noise`` x the spectral floor; 1 - ``separation``
+    of the leader's gap without one), is still separated from the leader's (the
+    verdict's ``separation`` test) and its train fit does not beat the leader's by that
+    ratio (``contenders``' train rule: with equal freedom the train records count too).
+
+    Why (speed, issue 16 must-show 3): look-alike laws are the laws that produce nearly
+    the same force over the measured amplitudes -- that is what ties them at the
+    leader's place -- so at another place the look-alike fits about as well as the
+    leader's law fitted there, within the same tie margin.  A place where the leader's
+    law is separated even after that margin is decided, and fitting the look-alike
+    there cannot rival the leader (measured, fresh seed 17480, 4-DOF frame: the
+    quadratic damper m2-ground led at 0.0303, floor 0.0085; at the 9 other places it left
+    0.040-0.085, and the cubic damper fitted there was at most 0.005 below it, within
+    the margin; 9 fits of ~11 s each).
+    Places where the leader's law was not fitted, or came within the margin, are kept."""
+    if noise is not None and noise > 0:
+        margin = settings.swap_noise * noise
+    else:
+        margin = (1.0 - settings.separation) * lead.gap_after
+    same = {c.loc.between: c for c in fitted
+            if c.fitted and c.effect.kind == lead.effect.kind and c is not lead
+            and c.category == "structure" and np.isfinite(c.gap_after)
+            and np.isfinite(c.train_cost)}
+
+    def decided(c: Candidate) -> bool:
+        f = same.get(c.loc.between)
+        return bool(f is not None
+                    and lead.gap_after <= settings.separation * (f.gap_after - margin)
+                    and f.train_cost > settings.separation * lead.train_cost)
+    return [c for c in more if not decided(c)]
+
+
 def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
                settings: DiagnoseSettings, best: float
                ) -> tuple[Candidate, float, tuple[np.ndarray, list[int]]] | None:
