@@ -8,9 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from siva_core._impl.diagnose import DiagnoseSettings, diagnose, synthetic_impacts, with_effect
+from siva_core import DiagnoseSettings, Structure, diagnose, synthetic_impacts, with_effect
 from siva_core._impl.diagnose.budget import Budget, clock_of
-from siva_core import Structure
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "examples" / "models" / "lono.toml"

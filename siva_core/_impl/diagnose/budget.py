@@ -68,7 +68,7 @@ class Budget:
                 self.say(f"time budget {self.seconds:g} s reached at {t:.0f} s: {kind} "
                          f"{what} (expected {self.expected(kind, cost):.0f} s) and all "
                          "further work not opened; the verdict comes from what was "
-                         "fitted and checked so far")
+                         "fitted and checked so far")  # e.g. 'stage 3 of 3', 'pair a + b'
         self.skipped.setdefault(kind, []).append(what)
         return False
 

@@ -98,7 +98,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         # a further stage costs about what the last one did; not opened past the budget
         # (a tentative effect kept for it is then judged by the set rule as when the
         # stage names nothing)
-        if n > 0 and not clock.allows("stage", f"stage {n + 1}", stage_s):
+        if n > 0 and not clock.allows("stage", f"{n + 1} of {n_stages}", stage_s):
             stages.append({"gap_before": cur_gap, "budget": clock.text()})
             _say(progress, f"stage {n + 1}: not opened ({clock.text()})")
             break
