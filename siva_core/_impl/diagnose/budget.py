@@ -102,9 +102,9 @@ class Budget:
         out: dict[str, Any] = {"seconds": self.seconds,
                                "clock": "cpu" if self.cpu else "wall",
                                "reached": self.reached,
-                               "elapsed_s": float(self.elapsed())}
+                               "elapsed_time_s": float(self.elapsed())}
         if self.reached:
-            out["reached_at_s"] = float(self.reached_at or 0.0)
+            out["reached_at_time_s"] = float(self.reached_at or 0.0)
             out["reached_in"] = self.reached_in
             out["not_searched"] = {k: list(v) for k, v in self.skipped.items()}
         return out

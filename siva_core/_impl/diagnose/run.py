@@ -195,7 +195,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         alone = clock.run("backward step", "the second effect alone",
                           lambda: without_first(verdicts, structure, train, val, proc,
                                                 gap_before, before_blocks, settings,
-                                                progress)) if len(verdicts) > 1 else None
+                                                progress)) \
+            if len(verdicts) == 2 and all(v.category == "structure" for v in verdicts) \
+            else None  # (``without_first`` applies to two structural effects only)
         if alone is not None:
             _bootstrap(alone, train, proc, clock, progress)
             verdicts = [alone]
