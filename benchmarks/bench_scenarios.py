@@ -263,7 +263,8 @@ def _case(seed: int, args: argparse.Namespace) -> dict[str, Any]:
         if args.cpu_limit:
             signal.setitimer(signal.ITIMER_PROF, args.cpu_limit)
         row = run(sc, args.verbose,
-                  budget_settings(args.limit, args.cpu_limit, args.budget_share))
+                  budget_settings(args.limit, args.cpu_limit,
+                                  getattr(args, "budget_share", 0.75)))
         _disarm()
     except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
         _disarm()
