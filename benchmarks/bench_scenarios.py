@@ -14,7 +14,10 @@ Each row has the wall time, the process CPU time and the 1-minute load average a
 of the case (the machine is shared: the wall time depends on the load).
 
 Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
-[--limit WALL_S | --cpu-limit CPU_S] [--force-reading continuous|linear]``
+[--limit WALL_S | --cpu-limit CPU_S] [--budget-share 0.75] [--force-reading continuous|linear]``
+(a limit gives the diagnosis a time budget of ``--budget-share`` x it, on the same clock:
+a case near the limit returns its anytime verdict, counted as ``budget_reached``, instead
+of a timeout)
 (``--force-reading linear``: the records driven as before issue 16's fifth round, to
 reproduce the batches reported up to 15000-15159; the default drives them with the
 continuous hammer pulse, ``scenarios.FORCE_READINGS``)
@@ -41,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from siva_core import diagnose  # noqa: E402
+from siva_core import DiagnoseSettings, diagnose  # noqa: E402
 
 import scenarios  # noqa: E402
 import visibility_after  # noqa: E402
@@ -75,12 +78,25 @@ def _label(kind: str, between: Any) -> str:
     return f"{kind} {'-'.join(between)}"
 
 
-def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
+def budget_settings(limit: float, cpu_limit: float, share: float) -> DiagnoseSettings:
+    """The diagnosis's budget below the case's limit, on the limit's clock (CPU seconds
+    for ``--cpu-limit``: the process's CPU time, which ``budget_cpu`` measures too); the
+    library default without a limit.  ``share`` < 1 leaves the work in flight when the
+    budget is reached (one stage or set fit) room to end before the limit."""
+    if cpu_limit:
+        return DiagnoseSettings(budget_s=share * cpu_limit, budget_cpu=True)
+    if limit:
+        return DiagnoseSettings(budget_s=share * limit)
+    return DiagnoseSettings()
+
+
+def run(sc: scenarios.Scenario, verbose: bool = False,
+        settings: DiagnoseSettings | None = None) -> dict[str, Any]:
     seed = sc.seed
     t0, c0 = time.perf_counter(), time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        diag = diagnose(sc.nominal, sc.train, sc.val, "auto",
+        diag = diagnose(sc.nominal, sc.train, sc.val, "auto", settings=settings,
                         progress=(lambda m: print("   ", m, flush=True)) if verbose else None)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     out = diag.to_json()
@@ -121,6 +137,9 @@ def run(sc: scenarios.Scenario, verbose: bool = False) -> dict[str, Any]:
             "rivals": {_label(v["kind"], v["between"]): [r["candidate"] for r in v["rivals"]]
                        for v in out["verdicts"] if v.get("rivals")},
             "gap_before": out["nominal"]["gap"], "reason": out["rule"].get("reason"),
+            # the anytime verdict: the budget stopped the search (``rule["budget"]``)
+            "budget_reached": bool((out["rule"].get("budget") or {}).get("reached")),
+            "budget": out["rule"].get("budget"),
             # the sensor fault was named on the gap above the noise (verdict.sensor_above_noise)
             "sensor_above_noise": bool(out["rule"].get("sensor_above_noise")),
             "closures": {_label(v["kind"], v["between"]): v.get("closure")
@@ -176,6 +195,10 @@ def summarise(rows: list[dict[str, Any]]) -> None:
         if rs:
             print(f"  {c:7s} complete {rate(rs)}")
     print(f"  false verdicts on nulls: {false} of {len(nulls)}")
+    cut = [r for r in rows if r.get("budget_reached")]
+    timed_out = sum("time limit" in str(r.get("error", "")) for r in rows)
+    print(f"  time budget reached (anytime verdict): {len(cut)}, complete {rate(cut)}; "
+          f"over the time limit: {timed_out}")
     print(f"  effects all >= 5 x noise (or sensor only): complete {rate(strong)}; "
           f"with an effect < 5 x noise: {rate(faint)}")
     # the same classes by the visibility after the nominal refit (visibility_after.py):
@@ -239,7 +262,9 @@ def _case(seed: int, args: argparse.Namespace) -> dict[str, Any]:
             signal.alarm(int(args.limit))
         if args.cpu_limit:
             signal.setitimer(signal.ITIMER_PROF, args.cpu_limit)
-        row = run(sc, args.verbose)
+        row = run(sc, args.verbose,
+                  budget_settings(args.limit, args.cpu_limit,
+                                  getattr(args, "budget_share", 0.75)))
         _disarm()
     except (Exception, CaseTimeout) as exc:  # noqa: BLE001 - a failed case counts as wrong
         _disarm()
@@ -334,6 +359,10 @@ def main() -> int:
                     help="CPU seconds of the process per case (every thread counted; fair on a "
                          "shared machine, where wall time depends on the others' load); a case "
                          "over it counts as wrong")
+    ap.add_argument("--budget-share", type=float, default=0.75,
+                    help="the diagnosis's time budget as this share of --limit or "
+                         "--cpu-limit (on that clock); a case past it returns the verdict "
+                         "of what was checked (row's budget_reached) instead of a timeout")
     ap.add_argument("--no-isolate", dest="isolate", action="store_false",
                     help="run every case in this process (default: a process per case, "
                          "forked from a server that imported every module at the start, so "
@@ -352,6 +381,7 @@ def main() -> int:
         row = _case_in_child(seed, args) if args.isolate else _case(seed, args)
         rows.append(row)
         print(f"  -> {'OK ' if row['complete'] else 'NO '} named {row['named']} "
+              f"{'[budget reached] ' if row.get('budget_reached') else ''}"
               f"({row['time_s']:.0f} s wall, {row['cpu_s']:.0f} s CPU, load {row['load1']:.1f}; "
               f"{row.get('reason')})", flush=True)
         if args.json:

@@ -69,6 +69,11 @@ def _diagnose_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--html", metavar="FILE", help="also write an HTML report")
     p.add_argument("--write-model", metavar="FILE",
                    help="write the model with the identified effect(s) as a TOML spec")
+    p.add_argument("--budget", metavar="SECONDS", type=float, default=None,
+                   help="stop opening new work after about this many seconds and name what "
+                        "was fitted and checked by then (default 240; 0 = no budget); the "
+                        "JSON's rule.budget says whether it was reached and what was not "
+                        "searched")
 
 
 #: the library's own subcommands

@@ -53,6 +53,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
                                         "pulse reading",
                                         "siva_core._impl.simulate": "the force's readings"},
     "tests/test_diagnose_stages.py": {"siva_core._impl.diagnose": "the later stages"},
+    "tests/test_diagnose_budget.py": {
+        "siva_core._impl.diagnose.budget": "the budget's bookkeeping",
+        "siva_core._impl.diagnose.command": "--budget into the settings"},
     "tests/test_diagnose_nominal_sign.py": {"siva_core._impl.diagnose": "the nominal fit's "
                                             "other-sign start",
                                             "siva_core._impl.siva": "the processing choice"},

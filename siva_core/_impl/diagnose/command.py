@@ -13,11 +13,12 @@ from .model_spec import write_model
 from .outputs import _say
 from .report import html_report
 from .run import diagnose
+from .settings import DiagnoseSettings
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
     """`siva diagnose MODEL --train CSV... --val CSV... [--out FILE] [--html FILE]
-    [--write-model FILE]`."""
+    [--write-model FILE] [--budget SECONDS]`."""
     structure = Structure.from_file(args.model)
     checked, _ = read_fit_records(structure, args.train, args.val,
                                   maps=getattr(args, "map", None),
@@ -29,7 +30,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
     # the stage lines say what is done; the fraction lines when it will be over
     eta = None if quiet else FractionProgress("diagnose", every_s=5.0)
     diag = diagnose(structure, train, val, getattr(args, "processing", "auto"),
-                    progress=progress, fraction=eta.update if eta else None)
+                    settings=_settings(args), progress=progress,
+                    fraction=eta.update if eta else None)
     if eta:
         eta.update(1.0, force=True)
     text = json.dumps(diag.to_json(), indent=2)
@@ -47,6 +49,14 @@ def diagnose_command(args: argparse.Namespace) -> int:
         Path(args.html).write_text(html_report(diag))
         _say(progress, f"report: {args.html}")
     return 0
+
+
+def _settings(args: argparse.Namespace) -> DiagnoseSettings:
+    """The documented defaults, with ``--budget`` (0 or less: no budget)."""
+    budget = getattr(args, "budget", None)
+    if budget is None:
+        return DiagnoseSettings()
+    return DiagnoseSettings(budget_s=budget if budget > 0 else None)
 
 
 def _stderr(msg: str) -> None:

@@ -25,6 +25,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .joint_sensor import retune_sensor
 from .model_edit import augmented
+from .budget import clock_of
 from .outputs import Progress, _say
 from .parallel import run_each, worker_count
 from .results import Candidate
@@ -213,12 +214,17 @@ def refit_from_lead(c: Candidate, lead: Candidate, structure: Structure,
             c.structure = aug
     except Exception:  # noqa: BLE001 - the old scale stands
         pass
-    try:
-        theta, cost, _ = _refit(c.structure, [np.asarray(c.theta, float), *starts], train,
-                                proc, settings.fit_nfev)
+    try:  # past the budget its single fit stands and only the starts serve its pairs
+        got = clock_of(settings).run(
+            "look-alike refit", c.label(),
+            lambda: _refit(c.structure, [np.asarray(c.theta, float), *starts], train,
+                           proc, settings.fit_nfev))
     except Exception as exc:  # noqa: BLE001 - its single fit stands
         _say(progress, f"{c.label()}: refit from the lead's force failed ({exc})")
         return starts
+    if got is None:
+        return starts
+    theta, cost, _ = got
     at = ", ".join(f"{m:.4g}" for m in mags)
     if not (np.isfinite(cost) and cost < c.train_cost):
         _say(progress, f"{c.label()}: refit from {lead.label()}'s force (starts {at}): "
@@ -283,8 +289,10 @@ def grow_sets(options: Sequence[SetFit], joining: Sequence[Candidate], structure
                 seen.add(key)
                 jobs.append((base, c))
     def one(bc: tuple[SetFit, Candidate], ref: float) -> SetFit | None:
-        return grow(bc[0], bc[1], structure, train, val, proc, gap_before, before_blocks,
-                    settings, progress, ref)
+        return clock_of(settings).run(
+            "set of three", f"{bc[0].label()} + {bc[1].label()}",
+            lambda: grow(bc[0], bc[1], structure, train, val, proc, gap_before,
+                         before_blocks, settings, progress, ref))
 
     fits = run_each(lambda bc: one(bc, against), jobs, worker_count(settings))
     origin = {id(f): bc for f, bc in zip(fits, jobs) if f is not None}

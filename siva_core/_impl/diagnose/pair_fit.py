@@ -11,6 +11,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .budget import clock_of
 from .joint_sensor import force_scale_retune, retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _say
@@ -19,7 +20,7 @@ from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .settings import DiagnoseSettings
 
 
-def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
+def _fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
              val: Sequence[Recording], proc: Processing, gap_before: float,
              before_blocks: np.ndarray, settings: DiagnoseSettings,
              progress: Progress | None = None, against: float = math.inf,
@@ -107,3 +108,16 @@ def best_known(options: Sequence[Candidate], ranking: Sequence[Candidate]) -> fl
     costs += [c.train_cost for c in ranking if c.category == "structure" and c.fitted
               and not c.stopped and np.isfinite(c.train_cost)]
     return min(costs, default=math.inf)
+
+
+def fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[Recording],
+             val: Sequence[Recording], proc: Processing, gap_before: float,
+             before_blocks: np.ndarray, settings: DiagnoseSettings,
+             progress: Progress | None = None, against: float = math.inf,
+             starts_a: Sequence[np.ndarray] = ()) -> SetFit | None:
+    """``_fit_pair`` within the diagnosis's time budget (``budget``): None, as a pair
+    that cannot be fitted, once a pair fit would run past it."""
+    return clock_of(settings).run(
+        "pair", f"{a.label()} + {b.label()}",
+        lambda: _fit_pair(a, b, structure, train, val, proc, gap_before, before_blocks,
+                          settings, progress, against, starts_a))

@@ -3,6 +3,7 @@ candidate fits (structural and sensor), each stage adding the effect it finds wh
 effect is significant on the validation records; then where and the signatures."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import Any, Sequence
@@ -12,6 +13,7 @@ import numpy as np
 from ..effects import EFFECTS
 from ..recording import Recording
 from ..structure import Structure
+from .budget import Budget
 from .elimination import without_first
 from .fitting import bootstrap_intervals
 from .band import fit_nominal_in_band
@@ -45,6 +47,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     settings = settings or DiagnoseSettings()
     if not train or not val:
         raise ValueError("diagnose needs at least one --train and one --val record")
+    # the anytime budget (``budget``): a copy of the settings carries it to every step
+    clock = Budget(settings.budget_s, settings.budget_cpu, say=progress)
+    settings = dataclasses.replace(settings, clock=clock)
     t_all = time.perf_counter()
     timing: dict[str, float] = {}
     proc = choose_processing(processing, [*train, *val], structure.dofs)
@@ -88,8 +93,17 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     shadowed: dict[tuple[str, tuple[str, str]], bool] = {}
     cur_gap, cur_blocks = gap_before, before_blocks
     sensor_only = False
+    stage_s, first_cut = 0.0, False
     for n in range(n_stages):
         tag = "" if n == 0 else f"stage{n + 1}_"
+        # a further stage costs about what the last one did; not opened past the budget
+        # (a tentative effect kept for it is then judged by the set rule as when the
+        # stage names nothing)
+        if n > 0 and not clock.allows("stage", f"{n + 1} of {n_stages}", stage_s):
+            stages.append({"gap_before": cur_gap, "budget": clock.text()})
+            _say(progress, f"stage {n + 1}: not opened ({clock.text()})")
+            break
+        t_stage, skipped = clock.now(), clock.n_skipped()
         lo, hi = 0.2 + 0.8 * n / n_stages, 0.2 + 0.8 * (n + 1) / n_stages
         # a stage opened for a sensor fault under an explaining verdict fits sensor faults
         # only (``residue``): before it, the search ended there
@@ -99,6 +113,8 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                             v.category == "sensor" for v in verdicts),
                         progress, lambda x: report(lo + (hi - lo) * x), timing, tag,
                         noise)
+        stage_s = clock.now() - t_stage
+        clock.took("stage", stage_s)
         for c in rk:  # a gain's last shadow judgement: a set's copy of it inherits it
             if c.category == "sensor":
                 shadowed[c.key] = shadowed_by_reading(c, rk) is not None
@@ -112,11 +128,20 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         stages.append({"gap_before": cur_gap, "rule": r,
                        "ranking": [c.label() for c in rk],
                        "verdict": v.label() if v is not None else None})
+        cut = clock.n_skipped() > skipped
+        if cut:  # a fit of this stage was not opened: its lead is not checked, not named
+            stages[-1]["budget_unchecked"] = v.label() if v is not None else (
+                rk[0].label() if rk else None)
+            _say(progress, f"stage {n + 1}: cut by the time budget; its lead "
+                           f"{stages[-1]['budget_unchecked'] or '(none fitted)'} is not "
+                           "named (its rivals, places or look-alikes were not all fitted)")
+            v = None
         if n == 0:
             ranking, cands, rule = rk, cs, r
+            first_cut = cut
         part = large_part(rk, cur_gap, noise, settings) if v is None and not verdicts \
-            else None
-        if v is None and (_partial(r, rk, settings) or part is not None) \
+            and not cut else None
+        if v is None and not cut and (_partial(r, rk, settings) or part is not None) \
                 and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
@@ -138,10 +163,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             if verdicts:  # its best fits are still paired with the effect before it
                 refused = worth_pairing(rk, cur_fit.train_cost, settings)
             break
-        try:
-            bootstrap_intervals(v, cur_train, proc)
-        except Exception as exc:  # noqa: BLE001 - the Gauss-Newton intervals stand
-            _say(progress, f"{v.label()}: bootstrap interval failed ({exc})")
+        _bootstrap(v, cur_train, proc, clock, progress)
         verdicts.append(v)
         _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the gap "
                        f"{cur_gap:.4g}")
@@ -162,20 +184,24 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         # stage's candidates "close" what a longer fit of this one closes (issue 16: a force
         # gain fitted with the stage budget left half a gap that a coulomb with fc ~ 0, i.e.
         # the same model fitted longer, then closed)
-        _polish(v, cur_train, cur_val, proc, settings, cur_gap, cur_blocks, progress)
+        clock.run("polish", v.label(), lambda v=v, t=cur_train, va=cur_val, g=cur_gap,
+                  b=cur_blocks: _polish(v, t, va, proc, settings, g, b, progress))
         # the next stage starts from the model (or records) with this effect
         cur_train, cur_val = v.correct(cur_train), v.correct(cur_val)
         cur_struct = v.structure
         cur_fit = NominalFit(v.theta, v.train_cost, f"with {v.label()}")
         cur_gap, cur_blocks = validation_gap(cur_struct, v.theta, cur_val, proc)
     if settings.backward:
-        alone = without_first(verdicts, structure, train, val, proc, gap_before,
-                              before_blocks, settings, progress)
+        # skipped past the budget: the greedy set is then judged by the set rule, which
+        # needs every member (``sets.choose_set``'s every_member_needed)
+        alone = clock.run("backward step", "the second effect alone",
+                          lambda: without_first(verdicts, structure, train, val, proc,
+                                                gap_before, before_blocks, settings,
+                                                progress)) \
+            if len(verdicts) == 2 and all(v.category == "structure" for v in verdicts) \
+            else None  # (``without_first`` applies to two structural effects only)
         if alone is not None:
-            try:
-                bootstrap_intervals(alone, train, proc)
-            except Exception as exc:  # noqa: BLE001 - the Gauss-Newton intervals stand
-                _say(progress, f"{alone.label()}: bootstrap interval failed ({exc})")
+            _bootstrap(alone, train, proc, clock, progress)
             verdicts = [alone]
             ranking = sorted([alone, *ranking], key=lambda c: -c.closure
                              if np.isfinite(c.closure) else math.inf)
@@ -197,6 +223,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, rule0 = decide(ranking, gap_before, where["noise_floor"], settings,
                             separated=one_value_separation(train, val, proc,
                                                               settings.test_blocks))
+    if first_cut:  # the first stage was cut by the budget: its ranking is incomplete
+        verdict = None
+        rule0["budget_unchecked"] = stages[0].get("budget_unchecked")
     rule = {**rule, **rule0}
     known = KnownFits(structure, theta, train, val, proc)  # the fits without a member
     verdict, verdicts, set_rule = choose_set(
@@ -209,6 +238,15 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts = break_tie(verdict, verdicts, ranking, train, val, proc, gap_before,
                                   where["noise_floor"], psd_floor, settings, rule, progress,
                                   known)
+    rule["budget"] = clock.as_rule()
+    if clock.reached:  # said plainly: the search was cut, the verdict is what was checked
+        lead = rule.get("budget_unchecked")
+        if first_cut and verdict is None:
+            rule["reason"] = "the first stage was cut by the time budget: " + (
+                f"its lead {lead} is not named (its rivals, places and look-alikes were "
+                "not all fitted)" if lead else "no candidate was fitted")
+        rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {clock.text()}"
+        _say(progress, clock.text())
     limit = reading_limit(structure, theta, [*train, *val])
     if limit is not None:  # what no verdict can say either way (pulse_reading's doc)
         rule["pulse_reading_limit"] = limit
@@ -232,3 +270,15 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     report(1.0)
     return Diagnosis(verdict, ranking, verdicts, cands, where, nominal, rule, proc, timing,
                      structure, theta, list(train), list(val), plots, signatures, stages)
+
+
+def _bootstrap(v: Candidate, train: Sequence[Recording], proc: Any, clock: Budget,
+               progress: Progress | None) -> None:
+    """The bootstrap interval of a named effect, within the budget (past it the
+    Gauss-Newton interval of its fit stands, as when the bootstrap fails)."""
+    def once() -> None:
+        try:
+            bootstrap_intervals(v, train, proc)
+        except Exception as exc:  # noqa: BLE001 - the Gauss-Newton intervals stand
+            _say(progress, f"{v.label()}: bootstrap interval failed ({exc})")
+    clock.run("bootstrap", v.label(), once)

@@ -1,8 +1,8 @@
 """The knobs of a diagnosis (one dataclass, the documented defaults)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
 
 #: refine's uncertainty for every fit inside a diagnosis: Gauss-Newton, no simulation.
 #: refine's default bootstrap simulates ~70 force-noise replicates per record (measured:
@@ -188,6 +188,16 @@ class DiagnoseSettings:
         wave's fits are stopped early (``stop_ratio``) against the best fit of the waves
         before it.  A schedule, not a worker count: the result depends on it (a larger
         wave stops fewer losers) but not on ``workers``.
+    budget_s: seconds from the start of ``diagnose`` (``budget``): once the time spent
+        plus what a unit of work of that kind has cost so far would pass it, no further
+        stage, pair or set fit, swap, tie-break, polish or bootstrap is opened, and the
+        verdict is chosen among what was fitted and checked (the report's
+        ``rule["budget"]`` says where it stopped and what was not searched).  240 s: an
+        answer within four minutes (issue 16: 12 of 60 fresh scenarios ran past 300 s);
+        None = no budget.
+    budget_cpu: measure ``budget_s`` in this process's CPU seconds instead of wall
+        seconds (a benchmark whose limit is CPU time on a shared machine).
+    clock: the running budget, set by ``diagnose`` (not a knob).
     """
 
     top_k: int = 4
@@ -244,3 +254,6 @@ class DiagnoseSettings:
     swap_noise: float = 1.0
     tie_contenders: int = 3
     place_lookalikes: int = 2
+    budget_s: float | None = 240.0
+    budget_cpu: bool = False
+    clock: Any = field(default=None, repr=False, compare=False)

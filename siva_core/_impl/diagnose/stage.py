@@ -14,6 +14,7 @@ from ..effects import Effect
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .budget import clock_of
 from .early_stop import cannot_win
 from .fitting import continue_fit, fit_candidate, scan_candidate
 from .nominal import DISSIPATIVE, NominalFit
@@ -249,6 +250,13 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         refit_in_full(c, second)
 
     def refit_in_full(c: Candidate, second: Callable[[Candidate], bool]) -> None:
+        if not clock_of(settings).allows("full refit", c.label()):
+            return
+        t0 = clock_of(settings).now()
+        _refit_in_full(c, second)
+        clock_of(settings).took("full refit", clock_of(settings).now() - t0)
+
+    def _refit_in_full(c: Candidate, second: Callable[[Candidate], bool]) -> None:
         c.stopped, c.note = False, ""
         if not fit_first(c, stop=False):
             return
@@ -263,13 +271,18 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
     # in waves on the cores, each wave against the leader of the waves before it.
     order = sorted(chosen, key=lambda c: (c.category == "sensor", -_strength(c)))
     done = 0
+    # every fit within the time budget (``budget``): a stage with a fit not opened is
+    # cut, and ``run`` names nothing from it (its checks are incomplete)
+    clock = clock_of(settings)
     for wave in waves(order, settings.fit_wave):
         against = (leader_cost(), leader())
-        run_each(lambda c: fit_first(c, against=against), wave, workers)
+        run_each(lambda c: clock.run("candidate fit", c.label(),
+                                     lambda: fit_first(c, against=against)), wave, workers)
         done += len(wave)
         fraction(0.4 + 0.4 * done / max(len(chosen), 1))
     lc = leader_cost()  # the second round's stop: the leader after the first round
-    run_each(lambda c: fit_more(c, lc=lc), finalists(chosen, settings), workers)
+    run_each(lambda c: clock.run("second round", c.label(), lambda: fit_more(c, lc=lc)),
+             finalists(chosen, settings), workers)
     fraction(0.9)
     run_each(judge, [c for c in chosen if c.fitted], workers)
     for c in [c for c in chosen if c.stopped]:
@@ -297,7 +310,8 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
 
         for wave in waves(extra, settings.fit_wave, first_alone=False):
             against = (leader_cost(), leader())
-            run_each(lambda c: one(c, against), wave, workers)
+            run_each(lambda c: clock.run("check fit", c.label(), lambda: one(c, against)),
+                     wave, workers)
             for c in wave:
                 chosen.append(c)
                 if c.fitted:

@@ -41,6 +41,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .law_match import matched_magnitudes, motion_points, place_motion
 from .model_edit import augmented
+from .budget import clock_of
 from .outputs import Progress, _say
 from .results import Candidate, Location
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
@@ -190,8 +191,11 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             amp_at = m.amplitudes if loc.between == m.loc.between else next(
                 (c.amplitudes for c in known if c.loc.between == loc.between
                  and c.amplitudes is not None), None)
-            fit = _swap_fit(chosen, k, m, others, eff, loc, aug, names, starts, recs, val,
-                            proc, gap_before, before_blocks, settings, progress, amp_at)
+            fit = clock_of(settings).run(
+                "swap", f"{m.label()} -> {new_label(eff, loc)}",
+                lambda eff=eff, loc=loc, aug=aug, names=names, starts=starts, amp_at=amp_at:
+                _swap_fit(chosen, k, m, others, eff, loc, aug, names, starts, recs, val,
+                          proc, gap_before, before_blocks, settings, progress, amp_at))
             if fit is not None:
                 out.append((k, fit))
     return out

@@ -36,6 +36,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from .early_stop import cannot_win
+from .budget import clock_of
 from .outputs import Progress, _say
 from .results import Candidate
 from .set_members import below_noise, contributions, floor_for
@@ -179,7 +180,9 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
     fits: list[tuple[Candidate, Candidate, float, tuple[np.ndarray, list[int]]]] = []
     best = math.inf
     for c in [verdict, *rivals]:
-        got = _refit_all(c, records, proc, settings, best)
+        got = clock_of(settings).run(
+            "tie", f"{c.label()} on all records",
+            lambda c=c, best=best: _refit_all(c, records, proc, settings, best))
         if got is not None:
             fits.append((c, *got))
             best = min(best, got[1])
