@@ -359,9 +359,12 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         if lead.loc.between != place and unsure(lead):
             for c in other_kinds(cands, lead, chosen):
                 fit_extra([c], lead)
-    elif settings.place_check and weak_lead(lead, gap_before, noise, settings):
+    elif settings.place_check and not tag and weak_lead(lead, gap_before, noise, settings):
         # a lead closing little of a gap many times the noise: its kind at other places
-        # too (``weak_lead``: two effects of one kind, none closing much alone)
+        # too (``weak_lead``: two effects of one kind, none closing much alone); in the
+        # first stage only, where nothing explains part of the gap yet: later stages' gaps
+        # are many times the noise whenever the nominal fits poorly (fresh seed 17474:
+        # six more fits of 4-50 s each in stage 2, naming nothing)
         more = weak_lead_places(cands, lead, chosen, settings)
         if more:
             _say(progress, f"{lead.label()}: a weak lead (closure {lead.closure:.3f}), "
