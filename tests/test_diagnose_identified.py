@@ -47,7 +47,8 @@ def test_seed_17517_gap_is_the_nominal_cubic_spring():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         proc0 = choose_processing("auto", [*sc.train, *sc.val], st.dofs)
-        proc, fit = fit_nominal_in_band(st, sc.train, [*sc.train, *sc.val], proc0, s)
+        proc, fit = fit_nominal_in_band(st, sc.train, [*sc.train, *sc.val], proc0, s,
+                                        None)
         gap = validation_gap(st, fit.theta, sc.val, proc)[0]
         pin = lowest_pinned_gap(st, fit.theta, fit.train_cost, gap, sc.train, sc.val,
                                 proc, s)
