@@ -59,6 +59,13 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_nominal_sign.py": {"siva_core._impl.diagnose": "the nominal fit's "
                                             "other-sign start",
                                             "siva_core._impl.siva": "the processing choice"},
+    "tests/test_diagnose_identified.py": {
+        "siva_core._impl.diagnose": "the pinned nominal refits, the refusal rule",
+        "siva_core._impl.siva": "the processing choice"},
+    "tests/test_diagnose_bounded.py": {
+        "siva_core._impl.diagnose": "the escaping nominal, a NaN gap's reason",
+        "siva_core._impl.effects": "a candidate's effect",
+        "siva_core._impl.siva": "the processing choice"},
     "tests/test_diagnose_parallel.py": {"siva_core._impl.diagnose.parallel": "the worker pool"},
     "tests/test_diagnose_early_stop.py": {"siva_core._impl.diagnose": "the fits' early stop",
                                           "siva_core._impl.effects": "effect amplitudes"},

@@ -15,7 +15,9 @@ from ..recording import Recording
 from ..structure import Structure
 from .budget import Budget
 from .elimination import without_first
+from .bounded import bounded_nominal
 from .fitting import bootstrap_intervals
+from .identified import check_named
 from .band import fit_nominal_in_band
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
@@ -61,6 +63,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                                                 settings, progress)
     else:  # the caller's chain is kept as given
         nominal_fit = fit_nominal(structure, train, proc, settings, progress)
+    # a nominal that escapes on the validation records has no gap there (bounded's doc)
+    nominal_fit, val, escaped = bounded_nominal(structure, nominal_fit, train, val, proc,
+                                                settings, progress)
     theta, train_cost, start = nominal_fit.theta, nominal_fit.train_cost, nominal_fit.start
     timing["nominal_fit"] = time.perf_counter() - t0
     val_prob = _Outputs(structure, val, proc, theta)
@@ -238,6 +243,13 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts = break_tie(verdict, verdicts, ranking, train, val, proc, gap_before,
                                   where["noise_floor"], psd_floor, settings, rule, progress,
                                   known)
+    if escaped is not None:
+        rule["nominal_escaped"] = escaped
+        rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {escaped['text']}"
+    # a gap the nominal model's own unidentified coefficient explains names nothing
+    verdict, verdicts = check_named(verdict, verdicts, structure, theta, train_cost,
+                                    gap_before, train, val, proc, psd_floor, settings, rule,
+                                    progress)
     rule["budget"] = clock.as_rule()
     if clock.reached:  # said plainly: the search was cut, the verdict is what was checked
         lead = rule.get("budget_unchecked")

@@ -257,7 +257,10 @@ def _reasons(top: Candidate, rival: Candidate | None, gap_before: float,
     best candidate closed 0.25 of it)."""
     ratio = gap_before / noise_floor if noise_floor is not None and noise_floor > 0 \
         else math.inf
-    if noise_floor is not None and not gap_before > settings.noise_factor * noise_floor:
+    if not math.isfinite(gap_before):  # NaN compares False: never "fits" (seed 17471)
+        size = (f"the nominal validation gap is not a number ({gap_before}): the nominal "
+                "model's simulation of the validation records diverges")
+    elif noise_floor is not None and not gap_before > settings.noise_factor * noise_floor:
         size = (f"the nominal model already fits the validation records to the noise "
                 f"level (gap {gap_before:.3g}, {ratio:.1f} x the noise floor, at most "
                 f"{settings.noise_factor:g} x)")
