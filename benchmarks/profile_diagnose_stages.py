@@ -37,7 +37,7 @@ STEPS = {"fit_nominal": "nominal_fit", "fit_nominal_in_band": "band",
          "spectral_noise_floor": "noise_floor", "screen": "screen", "ee_screen": "screen",
          "scan_candidate": "scans", "scan_sensor": "scans", "fit_candidate": "candidate_fits",
          "fit_sensor": "candidate_fits", "continue_fit": "candidate_fits", "_judge": "judge",
-         "validation_gap": "judge", "_polish": "polish", "bootstrap_intervals": "bootstrap",
+         "validation_gap": "judge", "polish": "polish", "bootstrap_intervals": "bootstrap",
          "without_first": "backward", "choose_set": "sets_pair_fits",
          "where_analysis": "where_signatures", "amplitude_signatures": "where_signatures"}
 

@@ -11,17 +11,17 @@ def test_a_second_stage_runs_when_the_first_effect_leaves_more_than_the_noise():
     and the damper of the pair was never looked for); the old rule stopped on gap_min."""
     from siva_core import EFFECTS
     from siva_core._impl.diagnose import Candidate, Location
-    from siva_core._impl.diagnose.stage import _explained
+    from siva_core._impl.diagnose.stage_outcome import explained
 
     v = Candidate(EFFECTS["clearance"], Location(0, -1, ("m1", "ground")), {}, fitted=True,
                   gap_before=0.0177, gap_after=0.0025, closure=0.857)
     s = DiagnoseSettings()
     assert v.gap_after <= s.gap_min                      # the old rule stopped here
-    assert not _explained(v, s, noise=6e-4)              # 4 x the noise: look further
-    assert _explained(v, s, noise=1e-3)                  # 2.5 x the noise: explained
-    assert _explained(v, s, noise=None)
+    assert not explained(v, s, noise=6e-4)              # 4 x the noise: look further
+    assert explained(v, s, noise=1e-3)                  # 2.5 x the noise: explained
+    assert explained(v, s, noise=None)
     v.gap_after = 0.006
-    assert not _explained(v, s, noise=1e-2)              # above gap_min
+    assert not explained(v, s, noise=1e-2)              # above gap_min
 
 
 def test_a_later_stage_is_judged_against_the_noise_not_the_fixed_floor():
@@ -53,7 +53,7 @@ def test_a_lead_removing_many_times_the_noise_is_kept_tentatively():
     spectral floor, or a force gain the pulse reading explains is not kept."""
     from siva_core import EFFECTS
     from siva_core._impl.diagnose import Candidate, Location
-    from siva_core._impl.diagnose.stage import _partial, large_part
+    from siva_core._impl.diagnose.stage_outcome import large_part, partial_lead
 
     s = DiagnoseSettings()
     gap, noise = 0.09217, 0.0002468
@@ -61,7 +61,7 @@ def test_a_lead_removing_many_times_the_noise_is_kept_tentatively():
                      fitted=True, gap_before=gap, gap_after=0.07369, closure=0.200)
     rule = {"checks": {"above_noise": True, "closure": False, "separation": False,
                        "consistent": True}}
-    assert not _partial(rule, [lead], s)                 # under step_min: refused before
+    assert not partial_lead(rule, [lead], s)                 # under step_min: refused before
     part = large_part([lead], gap, noise, s)
     assert part is not None and 74 < part["removed_x_floor"] < 76
     assert large_part([lead], gap, None, s) is None

@@ -1,7 +1,7 @@
 """A sensor fault left under a structural verdict that seems to explain the gap.
 
 A stage's verdict that leaves less than ``gap_min`` and within ``kind_check_noise`` x the
-spectral floor ends the search (``stage._explained``).  A one-value sensor fault beside a
+spectral floor ends the search (``stage_outcome.explained``).  A one-value sensor fault beside a
 strong structural effect can hide there: fresh seed 17386 (3-DOF frame, quadratic damper
 m3-ground + accelerometer gain 0.915 on acc_m3): the damper closed 0.965 and left 0.0038,
 2.4 x the floor 0.0016, and the gain was never fitted (in stage 1 its scan at the nominal

@@ -35,8 +35,8 @@ from .ties import break_tie
 from .weak_lead import tentative_lead
 from .where import _explain, spectral_noise_floor, where_analysis
 
-from .stage import (Fraction, _explained, _partial, _polish, _refresh, _stage,
-                    large_part)
+from .stage import Fraction, _stage
+from .stage_outcome import explained, large_part, partial_lead, polish, refresh_coefficients
 
 
 def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Recording],
@@ -146,7 +146,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             first_cut = cut
         part = large_part(rk, cur_gap, noise, settings) if v is None and not verdicts \
             and not cut else None
-        if v is None and not cut and (_partial(r, rk, settings) or part is not None) \
+        if v is None and not cut and (partial_lead(r, rk, settings) or part is not None) \
                 and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
@@ -154,7 +154,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             v = simplest_same(first, [c for c in rk if c is not first
                                       and np.isfinite(c.closure) and not c.reading])
             stages[-1]["tentative"] = v.label()
-            if part is not None and not _partial(r, rk, settings):
+            if part is not None and not partial_lead(r, rk, settings):
                 stages[-1]["tentative_large_part"] = part
                 _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the "
                                f"gap, removing {part['removed_x_floor']:.1f} x the noise "
@@ -174,7 +174,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                        f"{cur_gap:.4g}")
         if n + 1 >= n_stages or sensor_only:
             break
-        if _explained(v, settings, noise):
+        if explained(v, settings, noise):
             fault = sensor_residue(v, cur_train, proc, noise, settings) if settings.sensors \
                 and not any(x.category == "sensor" for x in verdicts) else None
             if fault is None:
@@ -190,7 +190,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         # gain fitted with the stage budget left half a gap that a coulomb with fc ~ 0, i.e.
         # the same model fitted longer, then closed)
         clock.run("polish", v.label(), lambda v=v, t=cur_train, va=cur_val, g=cur_gap,
-                  b=cur_blocks: _polish(v, t, va, proc, settings, g, b, progress))
+                  b=cur_blocks: polish(v, t, va, proc, settings, g, b, progress))
         # the next stage starts from the model (or records) with this effect
         cur_train, cur_val = v.correct(cur_train), v.correct(cur_val)
         cur_struct = v.structure
@@ -212,7 +212,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                              if np.isfinite(c.closure) else math.inf)
             stages.append({"gap_before": gap_before, "backward": alone.note,
                            "verdict": alone.label()})
-    _refresh(verdicts)
+    refresh_coefficients(verdicts)
     report(0.97)
 
     t0 = time.perf_counter()

@@ -46,7 +46,7 @@ class DiagnoseSettings:
         noise, not a fixed floor; issue 16: a quadratic damper 4-8 x the noise RMS closing
         0.75 of a 0.0021 gap was refused by the fixed floor).  Also: a first stage's
         best candidate removing at least this multiple of the floor is kept tentatively
-        whatever its closure, and the next stage starts from it (``stage.large_part``;
+        whatever its closure, and the next stage starts from it (``stage_outcome.large_part``;
         fresh seed 17335: 0.20 closed, 75 x the floor removed, the coulomb of the pair
         found only from its model).
     sensor_excess: a sensor fault (one value; the model otherwise as it was) passes the
