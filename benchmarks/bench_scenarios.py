@@ -270,14 +270,21 @@ def _case(seed: int, args: argparse.Namespace) -> dict[str, Any]:
         _disarm()
         if not isinstance(exc, CaseTimeout):
             traceback.print_exc()
-        row = {"seed": seed, "category": sc.category if sc is not None else "error",
-               "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
-               "named": [], "error": f"{type(exc).__name__}: {exc}", "complete": False,
-               "visibility": sc.visibility if sc else [],
-               **(_after(sc) if sc else {}),
-               "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-               "load1": os.getloadavg()[0], "reason": str(exc)}
+        row = _failed_row(seed, sc, f"{type(exc).__name__}: {exc}", str(exc),
+                          time.perf_counter() - t0, time.process_time() - c0)
     return row
+
+
+def _failed_row(seed: int, sc: Any, error: str, reason: str, time_s: float,
+                cpu_s: float) -> dict[str, Any]:
+    """The row of a case that ended without a diagnosis: counted wrong, with what was
+    drawn (when the draw itself got that far) and why."""
+    return {"seed": seed, "category": sc.category if sc is not None else "error",
+            "expected": sorted(_label(k, b) for k, b in sc.expected) if sc else [],
+            "named": [], "error": error, "complete": False,
+            "visibility": sc.visibility if sc else [], **(_after(sc) if sc else {}),
+            "time_s": time_s, "cpu_s": cpu_s, "load1": os.getloadavg()[0],
+            "reason": reason}
 
 
 def _preload() -> list[str]:
@@ -332,10 +339,9 @@ def _case_in_child(seed: int, args: argparse.Namespace) -> dict[str, Any]:
         row = None
     proc.join()
     if row is None:
-        row = {"seed": seed, "category": "error", "expected": [], "named": [],
-               "error": f"the case's process ended with code {proc.exitcode} and no row",
-               "complete": False, "visibility": [], "time_s": time.perf_counter() - t0,
-               "cpu_s": float("nan"), "load1": os.getloadavg()[0], "reason": "process died"}
+        row = _failed_row(seed, None,
+                          f"the case's process ended with code {proc.exitcode} and no row",
+                          "process died", time.perf_counter() - t0, float("nan"))
     return row
 
 
