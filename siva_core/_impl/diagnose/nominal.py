@@ -17,7 +17,7 @@ from .settings import FAST, DiagnoseSettings
 
 def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
     """A start worth simulating: finite, linear modes below 0.4 x the sampling rate and
-    not unstable.  Least squares on badly derived states can return stiffnesses whose
+    not unstable (no mode with negative damping, no real eigenvalue that grows).  Least squares on badly derived states can return stiffnesses whose
     modes the records cannot even resolve; such a start would only force huge substeps."""
     if not np.all(np.isfinite(theta)):
         return False
@@ -25,7 +25,12 @@ def _plausible(structure: Structure, theta: np.ndarray, fs: float) -> bool:
         modes = structure.linear_modes(theta)
     except Exception:  # noqa: BLE001 - a start whose linearisation fails is not plausible
         return False
-    return (all(f < 0.4 * fs for f in modes["frequency_hz"])
+    try:  # a real positive eigenvalue (an indefinite stiffness) is no mode but diverges
+        grows = structure.linear_growth_rate(theta) > 1e-3 * 2 * math.pi * max(
+            modes["frequency_hz"] or [1.0])
+    except Exception:  # noqa: BLE001 - as a failed linearisation
+        return False
+    return (not grows and all(f < 0.4 * fs for f in modes["frequency_hz"])
             and all(z > -1e-3 for z in modes["damping_ratio"]))
 
 
@@ -39,17 +44,33 @@ def _dissipative(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
     strongly nonlinear rig can trade a negative damper against a wrong nonlinear spring
     (measured: a hardening spring NO-ground of 2e7 N/m^3 gave b2 = -0.77); the sign flip
     gives the output-error fit a stable start in the right neighbourhood."""
+    return _made_positive(structure, theta, DISSIPATIVE)
+
+
+def _made_positive(structure: Structure, theta: np.ndarray,
+                   kinds: frozenset[str]) -> np.ndarray | None:
+    """``theta`` with the negative free coefficients of elements of ``kinds`` flipped, or
+    None when there are none."""
     free = list(structure.free)
     th = np.array(theta, float)
     changed = False
     for el in structure.elements:
-        if el.kind.name not in DISSIPATIVE:
+        if el.kind.name not in kinds:
             continue
         for p in el.params:
             if p in free and th[free.index(p)] < 0:
                 th[free.index(p)] = -th[free.index(p)]
                 changed = True
     return th if changed else None
+
+
+def _stiffened(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
+    """``theta`` with negative linear spring stiffnesses made positive, or None when there
+    are none.  Why: an effect the model lacks can make least squares trade stiffness
+    between elements (fresh seed 17482: a coulomb m1-m2 locking the pair at small forces
+    gave k = -838 N/m there); an indefinite stiffness diverges, and the sign flip is a
+    stable start the output-error fit then moves from."""
+    return _made_positive(structure, theta, frozenset({"spring"}))
 
 
 def linear_part(structure: Structure, theta: np.ndarray) -> np.ndarray | None:
@@ -146,9 +167,14 @@ def fit_nominal(structure: Structure, train: Sequence[Recording], proc: Processi
             starts.append((label, th, chain))
             continue
         fixed = _dissipative(structure, th)
+        stiff = _stiffened(structure, th if fixed is None else fixed)
         if fixed is not None and _plausible(structure, fixed, fs):
             _say(progress, f"nominal start {label}: negative damping made positive")
             starts.append((f"{label}, dampers made dissipative", fixed, chain))
+        elif stiff is not None and _plausible(structure, stiff, fs):
+            _say(progress, f"nominal start {label}: negative stiffness (and damping) made "
+                           "positive")
+            starts.append((f"{label}, springs made positive", stiff, chain))
         else:
             _say(progress, f"nominal start {label} rejected (implausible: "
                            f"{structure.as_dict(th)})")

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .modes import linear_modes
+from .modes import growth_rate, linear_modes
 from .parts import Element, ParameterInfo, SpecError
 from .spec import parse_spec, read_spec_file
 
@@ -197,6 +197,11 @@ class Structure:
         """Natural frequencies [Hz] and damping ratios of the linearised model about 0."""
         values = self.full_values(np.asarray(theta, dtype=float))
         return linear_modes(self.elements, values, self.masses)
+
+    def linear_growth_rate(self, theta: Any) -> float:
+        """Largest real part [1/s] of the linearised model's eigenvalues: > 0 diverges."""
+        values = self.full_values(np.asarray(theta, dtype=float))
+        return growth_rate(self.elements, values, self.masses)
 
     def describe(self) -> str:
         lines = [f"{self.name}: dofs {self.dofs}, masses {self.mass}"]
