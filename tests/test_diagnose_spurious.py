@@ -56,7 +56,10 @@ def test_a_lightly_damped_mode_is_no_hum_and_coloured_noise_gets_a_quieter_start
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fit = fit_nominal(sc.nominal, sc.train, proc, DiagnoseSettings())
-    assert "high-pass" in fit.start
+    # a quieter (high-passed) start, or, since a start whose stiffness grows is rejected
+    # (17482), the least-squares start with the negative ground spring flipped: either
+    # must reach the truth (measured: the flipped start, train cost 0.0056, k within 0.1 %)
+    assert "high-pass" in fit.start or "springs made positive" in fit.start, fit.start
     assert fit.train_cost < 1e-2, fit.train_cost
     theta = sc.nominal.as_dict(fit.theta)
     for p in ("k_m1g", "k_m1m2", "k_m2m3"):
