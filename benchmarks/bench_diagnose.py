@@ -260,6 +260,12 @@ def main() -> int:
     ap.add_argument("--budget", type=float, default=0.0,
                     help="the diagnosis's time budget in wall seconds (default 0: none; "
                          "the library's default is DiagnoseSettings.budget_s)")
+    ap.add_argument("--force-interp", default=None, choices=("moments", "linear"),
+                    help="how the diagnosis's fits read a measured force between samples "
+                         "(default: the library's, 'moments'); 'linear' is how "
+                         "synthetic_impacts, the matrix's generator, drives its simulation, "
+                         "so with it the truth model reproduces the matrix records exactly "
+                         "(an ablation: see docs/diagnosis.md, branch faint3)")
     ap.add_argument("--summarise", metavar="FILES",
                     help="no runs: the matrix and summary of rows saved by --json (comma-"
                          "separated files, e.g. of runs split over several processes)")
@@ -270,6 +276,10 @@ def main() -> int:
         print_confusion(rows)
         print_summary(rows)
         return 0
+    if args.force_interp:
+        from siva_core import set_measured_force_interp
+
+        set_measured_force_interp(args.force_interp)
     rows = []
     head = (f"{'case':32s} {'expected':24s} {'verdict':24s} {'size/true':12s} ok  {'closure':>8s} "
             f"{'gap_before':>10s} {'gap_after':>10s} {'time_s':>7s} {'cpu_s':>7s}")
