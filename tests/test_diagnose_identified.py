@@ -54,3 +54,57 @@ def test_seed_17517_gap_is_the_nominal_cubic_spring():
                                 proc, s)
     assert gap > 0.05 and pin is not None and pin.param == "knl_m1m2"
     assert pin.gap < 0.1 * gap  # measured: 0.137 -> 0.0034 (k3 pinned at 0)
+
+
+def test_pinned_points_refit_once_each_and_alike_on_any_worker_count(monkeypatch):
+    """The pinned refits run together on the workers (speed, branch lonospeed): each
+    distinct point is refitted once (0 and the mirror of a zero estimate are one point),
+    the parabola's minimum after the ends, and the chosen point is the same with 1 or 2
+    workers."""
+    import threading
+
+    import numpy as np
+
+    from siva_core._impl.diagnose import identified
+
+    st = _FakeStructure()
+    gaps = {-1.0: 0.3, 3.0: 0.25, 0.0: 0.08, -1.5: 0.2}
+
+    def fake_intervals(structure, theta, train, proc):
+        return {"k3": (-1.0, 3.0), "k5": (-1.0, 3.0)}, 0.01
+
+    def run(workers: int) -> tuple[list[tuple[str, float]], PinnedGap | None]:
+        calls: list[tuple[str, float]] = []
+        lock = threading.Lock()
+
+        def fake_refit(structure, theta, param, value, train, val, proc, settings):
+            with lock:
+                calls.append((param, float(value)))
+            gap = gaps.get(float(value), 0.02)  # the parabola's minimum: the lowest
+            return (0.105 if param == "k5" else 0.1), gap
+
+        monkeypatch.setattr(identified, "_intervals", fake_intervals)
+        monkeypatch.setattr(identified, "_refit", fake_refit)
+        monkeypatch.setattr(identified, "nonlinear_params", lambda s: ["k3", "k5"])
+        best = identified.lowest_pinned_gap(
+            st, np.array([1.5, 0.0]), 0.1, 0.1, [], [], None,
+            DiagnoseSettings(workers=workers))
+        return sorted(calls), best
+
+    calls1, best1 = run(1)
+    calls2, best2 = run(2)
+    assert calls1 == calls2
+    # k3 (estimate 1.5): lo, hi, 0, -1.5 and the parabola's minimum; k5 (estimate 0):
+    # lo, hi, 0 (its mirror is 0 again), and its parabola's minimum
+    assert sum(p == "k3" for p, _ in calls1) == 5
+    assert sum(p == "k5" for p, _ in calls1) == 4
+    assert len(set(calls1)) == len(calls1)
+    # the parabolas' minima (gap 0.02) are the lowest, k3's first (k5's ties it)
+    assert best1 == best2 and best1 is not None and best1.gap == 0.02
+    assert best1.param == "k3" and -1.0 < best1.value < 3.0
+
+
+class _FakeStructure:
+    """Only what ``lowest_pinned_gap`` reads of a structure: its free parameters."""
+
+    free = ["k3", "k5"]

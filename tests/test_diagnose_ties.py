@@ -109,3 +109,54 @@ def test_look_alikes_skip_places_the_leaders_law_already_lost() -> None:
     # a far place whose train fit rivals the leader's stays too
     rival = fit("quadratic_damper", YG, 0.0725, 0.0120)
     assert len(undecided_places(more, [lead, near, rival], lead, 0.0085, s)) == 3
+
+
+def test_the_refits_together_give_what_one_after_the_other_gives(places):
+    """Branch lonospeed: with two workers the refits on all records run together and the
+    early stop is replayed in order; the comparison is the one of one worker."""
+    train, val, proc, gap, (right, xy, yg) = places
+    rules = []
+    for workers in (1, 2):
+        s = DiagnoseSettings(workers=workers)
+        rule: dict = {}
+        noise = 2.0 * yg.gap_after
+        v, vs = break_tie(xy, [xy], [xy, right, yg], train, val, proc, gap, None, noise, s,
+                          rule)
+        rules.append((v.label(), [x.label() for x in vs],
+                      {k: rule["tie"][k] for k in ("compared", "z")}))
+    assert rules[0] == rules[1]
+    assert len(rules[0][2]["compared"]) == 2 and rules[0][0] == right.label()
+
+
+class _Traced:
+    """A candidate whose refit is a fixed trace of (stage, last, iteration, cost)."""
+
+    def __init__(self, name: str, trace: list, energy: float) -> None:
+        self.name, self.trace, self.energy = name, trace, energy
+
+    def label(self) -> str:
+        return self.name
+
+
+def test_a_refit_stopped_by_an_earlier_rival_is_dropped_on_any_worker_count(monkeypatch):
+    """The stop rule replayed against the best refit *before* each one (not only the
+    verdict's): c is stopped by b's low cost, as when they run one after the other."""
+    from siva_core._impl.diagnose import ties
+
+    def fake(c, records, proc, settings, best, seen=None):
+        stop = ties.cannot_win(best, settings)
+        for x in c.trace:
+            if seen is not None:
+                seen.append(x)
+            elif stop is not None and stop(*x):
+                return None
+        return c, c.energy, None
+
+    monkeypatch.setattr(ties, "_refit_all", fake)
+    full = lambda cost: [(0, True, k, cost) for k in range(4)]  # noqa: E731
+    cands = [_Traced("a", full(1.0), 1.0), _Traced("b", full(0.01), 0.01),
+             _Traced("c", full(0.5), 0.5)]  # c: 50 x b's cost, 0.5 x a's
+    got = {w: [f[0].name for f in ties._refit_each(cands, [], None,
+                                                   DiagnoseSettings(workers=w))]
+           for w in (1, 2)}
+    assert got[1] == got[2] == ["a", "b"]

@@ -24,6 +24,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .nominal import nonlinear_params
 from .outputs import Progress, _say
+from .parallel import run_each, worker_count
 from .scoring import validation_gap
 from .settings import FAST, DiagnoseSettings
 
@@ -126,20 +127,38 @@ def lowest_pinned_gap(structure: Structure, theta: np.ndarray, train_cost: float
     except Exception as exc:  # noqa: BLE001 - no interval, no check
         _say(progress, f"nominal identification: intervals failed ({exc})")
         return None
-    best: PinnedGap | None = None
+    params = [p for p in params if p in ints]
+    workers = worker_count(settings)
+
+    def refit(pv: tuple[str, float]) -> tuple[float, float]:
+        return _refit(structure, theta, pv[0], pv[1], train, val, proc, settings)
+
+    # the fixed points of every parameter are independent refits: they run together on
+    # the workers (the same values in the same order whatever the worker count); a dict
+    # keeps each distinct value once (0 and -0.0 are one point)
+    points = {p: list(dict.fromkeys((ints[p][0], ints[p][1], 0.0,
+                                     -float(theta[structure.free.index(p)]))))
+              for p in params}
+    flat = [(p, v) for p in params for v in points[p]]
+    tried_all: dict[str, dict[float, tuple[float, float]]] = {p: {} for p in params}
+    for (p, v), out in zip(flat, run_each(refit, flat, workers)):
+        tried_all[p][v] = out
+    # then the parabola's minimum of each, which needs the ends' gaps
+    extra: list[tuple[str, float]] = []
     for p in params:
-        if p not in ints:
-            continue
         lo, hi = ints[p]
         est = float(theta[structure.free.index(p)])
-        tried: dict[float, tuple[float, float]] = {}
-        for v in (lo, hi, 0.0, -est):
-            tried[v] = _refit(structure, theta, p, v, train, val, proc, settings)
-        ys = [tried[lo][1], gap_before, tried[hi][1]]
+        ys = [tried_all[p][lo][1], gap_before, tried_all[p][hi][1]]
         if all(np.isfinite(ys)):
             m = _parabola_min([lo, est, hi], ys)
             if m is not None and lo < m < hi:
-                tried[m] = _refit(structure, theta, p, m, train, val, proc, settings)
+                extra.append((p, m))
+    for (p, v), out in zip(extra, run_each(refit, extra, workers)):
+        tried_all[p][v] = out
+    best: PinnedGap | None = None
+    for p in params:
+        lo, hi = ints[p]
+        tried = tried_all[p]
         for v, (cost, gap) in tried.items():
             _say(progress, f"nominal identification: {p} pinned at {v:.4g} (interval "
                            f"[{lo:.4g}, {hi:.4g}]): train cost {cost:.4g} (nominal "

@@ -37,6 +37,7 @@ from ..processing import Processing
 from ..recording import Recording
 from .early_stop import cannot_win
 from .budget import clock_of
+from .parallel import run_each, worker_count
 from .outputs import Progress, _say
 from .results import Candidate
 from .set_members import below_noise, contributions, floor_for
@@ -135,17 +136,25 @@ def undecided_places(more: Sequence[Candidate], fitted: Sequence[Candidate],
 
 
 def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
-               settings: DiagnoseSettings, best: float
+               settings: DiagnoseSettings, best: float,
+               seen: list[tuple[int, bool, int, float]] | None = None
                ) -> tuple[Candidate, float, tuple[np.ndarray, list[int]]] | None:
     """``c`` refitted on ``records`` from its fit (a copy: ``c`` keeps its train-only
     fit), its residual energy there and the residual (``set_test.residual``, kept for the
-    block test); None when it cannot be fitted or was stopped."""
+    block test); None when it cannot be fitted or was stopped.  ``seen``: the fit is not
+    stopped but every (stage, last, iteration, cost) its stop rule would see is kept
+    there (``_stopped_at``)."""
     from ..refine import refine
 
     recs = c.correct(records)
+    def keep(stage: int, last: bool, it: int, cost: float, prob: Any = None) -> bool:
+        assert seen is not None
+        seen.append((stage, last, it, cost))
+        return False
+    stop = cannot_win(best, settings) if seen is None else keep
     try:
         res = refine(c.structure, c.theta, recs, proc, max_nfev=settings.fit_nfev,
-                     horizons=None, uncertainty=FAST, stop=cannot_win(best, settings))
+                     horizons=None, uncertainty=FAST, stop=stop)
     except Exception:  # noqa: BLE001 - a contender that cannot be refitted is none
         return None
     if bool(getattr(res, "stopped", False)):
@@ -155,6 +164,54 @@ def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
     if r is None:
         return None
     return out, float(r[0] @ r[0]), r
+
+
+Fit = tuple[Candidate, Candidate, float, tuple[np.ndarray, list[int]]]
+
+
+def _stopped_at(seen: Sequence[tuple[int, bool, int, float]], best: float,
+                settings: DiagnoseSettings) -> bool:
+    """Whether ``cannot_win(best)`` would have stopped a fit whose stop rule saw ``seen``
+    (the fit is deterministic: stopped at the first of them it returns True on)."""
+    stop = cannot_win(best, settings)
+    return stop is not None and any(stop(*x) for x in seen)
+
+
+def _refit_each(cands: Sequence[Candidate], records: Sequence[Recording],
+                proc: Processing, settings: DiagnoseSettings) -> list[Fit]:
+    """(single, refit, residual energy on all records, residual) of each of ``cands``
+    refitted on all records, each stopped early against the best refit before it.
+
+    Speed (issue 16 must-show 3, branch lonospeed): with more than one worker the refits
+    run together, unstopped, each keeping what its stop rule saw; the rule is then
+    replayed in order against the best refit before it, and a refit it would have
+    stopped is dropped.  The refits are deterministic, so the result is the one of the
+    refits run one after the other (with one worker they are, as before)."""
+    clock = clock_of(settings)
+    out: list[Fit] = []
+    best = math.inf
+    if worker_count(settings) <= 1 or len(cands) <= 1:
+        for c in cands:
+            got = clock.run("tie", f"{c.label()} on all records",
+                            lambda c=c, best=best: _refit_all(c, records, proc, settings,
+                                                              best))
+            if got is not None:
+                out.append((c, *got))
+                best = min(best, got[1])
+        return out
+    seen: list[list[tuple[int, bool, int, float]]] = [[] for _ in cands]
+
+    def one(k: int) -> tuple[Candidate, float, tuple[np.ndarray, list[int]]] | None:
+        c = cands[k]  # the first is refitted as before: nothing to stop it against
+        return clock.run("tie", f"{c.label()} on all records",
+                         lambda: _refit_all(c, records, proc, settings, math.inf,
+                                            None if k == 0 else seen[k]))
+    for c, got, saw in zip(cands, run_each(one, range(len(cands)), worker_count(settings)),
+                           seen):
+        if got is not None and not _stopped_at(saw, best, settings):
+            out.append((c, *got))
+            best = min(best, got[1])
+    return out
 
 
 def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
@@ -177,15 +234,7 @@ def break_tie(verdict: Candidate | None, verdicts: list[Candidate],
     t0 = time.perf_counter()
     records = [*train, *val]
     # (single, refit, residual energy on all records, residual)
-    fits: list[tuple[Candidate, Candidate, float, tuple[np.ndarray, list[int]]]] = []
-    best = math.inf
-    for c in [verdict, *rivals]:
-        got = clock_of(settings).run(
-            "tie", f"{c.label()} on all records",
-            lambda c=c, best=best: _refit_all(c, records, proc, settings, best))
-        if got is not None:
-            fits.append((c, *got))
-            best = min(best, got[1])
+    fits = _refit_each([verdict, *rivals], records, proc, settings)
     entry: dict[str, Any] = {
         "compared": [{"candidate": c.label(), "gap": float(c.gap_after),
                       "train_cost": float(c.train_cost), "all_records": g}
