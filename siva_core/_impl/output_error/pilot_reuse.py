@@ -7,7 +7,7 @@ first ``cost(theta_ref)`` would run -- ``output_error`` of a batch of starts, a 
 model's validation gap -- so it is taken instead (measured on fresh seed 17436, a 3-DOF
 pair: the pilots were 62 of 230 s of the diagnosis, half of them repeated right after).
 The numba kernel simulates each set by the same scalar code whatever the batch
-(``prange`` over the sets), so a set's run is the same alone or beside others, bit for
+(a loop over the sets), so a set's run is the same alone or beside others, bit for
 bit; the numpy backend vectorises over the batch, so there only the very same batch is
 taken.
 """

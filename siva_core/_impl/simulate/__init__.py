@@ -18,7 +18,7 @@ Modules (pure numerics: no records, no processing chain):
 - ``grid``: the force on the RK4 stage grid (``stage_force``), the divergence bound.
 - ``backends``: which backend runs, and dispatch to it.
 - ``numba_kernel``: a kernel generated from the element kinds' ``expr`` strings
-  (straight-line scalar code, ``prange`` over the parameter sets), compiled once per
+  (straight-line scalar code, a serial loop over the parameter sets), compiled once per
   structure *signature* and cached in-process and on disk.
 - ``rk4_numpy``: generic RK4 on ``structure.accelerations`` vectorised over the batch;
   used for user-defined kinds without ``expr`` or when numba is unavailable.

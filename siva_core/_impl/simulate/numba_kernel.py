@@ -1,14 +1,20 @@
 """numba backend: a straight-line RK4 kernel generated from the element kinds' ``expr``.
 
-The kernel is scalar code with ``prange`` over the parameter sets, compiled once per
+The kernel is scalar code with a plain loop over the parameter sets, compiled once per
 structure *signature* (kinds, topology, parameter slots; masses and parameter values are
 arguments) and cached in-process and on disk (a generated module under ``$SIVA_CACHE_DIR``
 or ``~/.cache/siva/kernels`` so numba's own cache can persist the machine code).
+
+Serial, not ``prange`` (branch speed6): numba's parallel lowering made each compile ~2.3x
+longer (5.4-6.6 s against 2.3-2.8 s cold on a 4-DOF frame at load ~3), and a diagnosis
+compiles a kernel for every candidate kind x place of a structure it has not seen (23 % of
+a fresh scenario's CPU).  Per call the serial kernel takes the same CPU (0.9-1.0x); the
+diagnosis already runs its fits on the cores in threads (``diagnose.parallel``), and a
+serial ``nogil`` kernel is re-entrant, so the calls need no lock and run side by side.
 """
 from __future__ import annotations
 
 import ast
-import contextlib
 import hashlib
 import importlib.util
 import os
@@ -16,13 +22,14 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import numpy as np
 
 from .grid import BLOWUP
 
-#: the kernel's OpenMP threads (numba's "omp" layer) sleep while they wait instead of
+#: (written for the kernel's former ``prange``; kept for any other OpenMP region of the
+#: process) OpenMP threads (numba's "omp" layer) sleep while they wait instead of
 #: spinning (libgomp's default spins ~300k times).  Why: a worker that spins after a batch
 #: and a caller that spins at the barrier burn a core each; on a loaded 2-core machine the
 #: spinning caller even delays the worker it waits for (cantilever, 11 sets: 7.2 ms CPU
@@ -186,7 +193,7 @@ def _write_kernel_source(structure: Any) -> str:
         "import numba as nb",
         "",
         "",
-        "@nb.njit(parallel=True, cache=CACHE, nogil=True, error_model='numpy',",
+        "@nb.njit(cache=CACHE, nogil=True, error_model='numpy',",
         f"         fastmath={_fastmath_literal()})",
         "def kernel(P, G, F, invm, Q0, V0, dt, m, Q, V, A):",
         "    # F: force at every RK4 stage time, (1 or B, 2 m (T - 1) + 1, n_dof): sample i,",
@@ -198,7 +205,7 @@ def _write_kernel_source(structure: Any) -> str:
         "    hh = 0.5 * h",
         "    h6 = h / 6.0",
         "    fstride = F.shape[0] // B  # 1: one force per set; 0: one force shared by all",
-        "    for b in nb.prange(B):",
+        "    for b in range(B):",
         *K,
         "",
     ]
@@ -218,7 +225,7 @@ def _fastmath_literal() -> str:
 
 
 _KERNELS: dict[str, Callable[..., None]] = {}
-_KERNEL_LOCK = threading.Lock()  # numba's default (workqueue) layer is not re-entrant
+_KERNEL_LOCK = threading.Lock()  # one thread writes / compiles a kernel module at a time
 
 
 def _cache_dir() -> Path | None:
@@ -298,34 +305,9 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
     V = np.empty((B, T, n))
     A = np.empty((B, T, n))
     invm = np.ascontiguousarray(1.0 / structure.masses)
-    with _KERNEL_LOCK, _threads_for(B):
-        kernel(P, G, Fa, invm, np.ascontiguousarray(Q0), np.ascontiguousarray(V0),
-               float(dt), int(m), Q, V, A)
+    kernel(P, G, Fa, invm, np.ascontiguousarray(Q0), np.ascontiguousarray(V0),
+           float(dt), int(m), Q, V, A)
     return Q, V, A
-
-
-@contextlib.contextmanager
-def _threads_for(B: int) -> Iterator[None]:
-    """Run a batch of one set on the calling thread alone.  Why: ``prange`` gives each
-    set to one thread, so a second thread has nothing to do for B = 1, yet the parallel
-    region still wakes it and waits for it at the barrier; on a loaded machine that wait
-    cost 6 ms of CPU per call against 0.4 ms for the simulation itself (cantilever, 2500
-    samples; ``refine`` evaluates single sets hundreds of times, docs/perf.md 8.3).  The
-    same compiled kernel runs either way, each set by the same code: bit-identical."""
-    if B != 1:
-        yield
-        return
-    import numba
-
-    previous = numba.get_num_threads()
-    if previous == 1:
-        yield
-        return
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(previous)
 
 
 def numba_unusable(structure: Any) -> str | None:
