@@ -41,6 +41,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .law_match import matched_magnitudes, motion_points, place_motion
 from .model_edit import augmented
+from .nested import nested_effect, nested_swap
 from .budget import clock_of
 from .outputs import Progress, _say
 from .results import Candidate, Location
@@ -184,7 +185,11 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             if np.any(np.isfinite(costs)):
                 jobs.append((float(np.nanmin(costs)), eff, loc, aug, names, starts))
         jobs.sort(key=lambda j: j[0])
-        here = [j for j in jobs if j[2].between == m.loc.between][:settings.swap_kinds]
+        here = [j for j in jobs if j[2].between == m.loc.between]
+        simpler = nested_effect(m.effect.kind)  # always fitted (``nested``)
+        here = here[:settings.swap_kinds] + [
+            j for j in here[settings.swap_kinds:] if simpler is not None
+            and j[1].kind == simpler.kind]
         moved = [j for j in jobs if j[2].between != m.loc.between][:settings.swap_places]
         for cost0, eff, loc, aug, names, starts in here + moved:
             # what an element at loc sees (a known single's there) when m is moved
@@ -345,6 +350,15 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
         return True
 
     win, rivals = swap_rivals(chosen, swaps, noise, settings, accept)
+    top = win if win is not None else chosen
+    simpler = nested_swap(top, swaps, val, proc, settings, accept, rule, progress)
+    if simpler is not None:  # the richer law unproven: the nested one named, it a rival
+        k, win = simpler
+        while len(rivals) <= k:
+            rivals.append([])
+        rivals[k] = [r for r in rivals[k] if r["candidate"] != win.members[k].label()] + [
+            {"candidate": top.members[k].label(), "closure": float(top.closure),
+             "in_set": top.label()}]
     if win is not None:
         _say(progress, f"swap: {win.label()} closes {win.closure:.3f} against "
                        f"{chosen.label()}'s {chosen.closure:.3f}")
