@@ -198,13 +198,13 @@ def prefer_simpler(verdict: Candidate | None, verdicts: list[Candidate],
     return simple, [simple]
 
 
-def nested_swap(top: Any, swaps: Sequence[tuple[int, Any]], val: Sequence[Recording],
+def nested_swap(top: Any, options: Sequence[Any], val: Sequence[Recording],
                 proc: Processing, settings: DiagnoseSettings, accept: Any,
                 rule: dict[str, Any], progress: Progress | None = None
                 ) -> tuple[int, Any] | None:
-    """(member index, the swap to name instead of the set ``top``): the swap that puts the
-    law nested in a member's law at its place, the other members as in ``top``, when
-    ``top`` does not beat it by ``test_z`` on the validation records and it passes
+    """(member index, the set of ``options`` to name instead of the set ``top``): the one
+    with the law nested in a member's law at its place, the other members as in ``top``,
+    when ``top`` does not beat it by ``test_z`` on the validation records and it passes
     ``accept`` (the set's checks); None when ``top`` stays.  ``rule["nested"]`` lists the
     comparisons."""
     labels = [m.label() for m in top.members]
@@ -213,15 +213,13 @@ def nested_swap(top: Any, swaps: Sequence[tuple[int, Any]], val: Sequence[Record
         eff = nested_effect(m.effect.kind) if m.category == "structure" else None
         if eff is None:
             continue
-        for j, s in swaps:
-            if j != k or s is top or s.stopped or not np.isfinite(s.gap_after) \
-                    or len(s.members) != len(labels):
-                continue
-            new = s.members[k]
-            if new.effect.kind != eff.kind or new.loc.between != m.loc.between \
-                    or [x.label() for i, x in enumerate(s.members) if i != k] \
-                    != [x for i, x in enumerate(labels) if i != k]:
-                continue
+        same = [s for s in options if s is not top and not s.stopped
+                and np.isfinite(s.gap_after) and len(s.members) == len(labels)
+                and s.members[k].effect.kind == eff.kind
+                and s.members[k].loc.between == m.loc.between
+                and [x.label() for i, x in enumerate(s.members) if i != k]
+                == [x for i, x in enumerate(labels) if i != k]]
+        for s in sorted(same, key=lambda s: s.gap_after):
             z = richer_better(s, top, val, proc, settings)
             entry = {"richer": top.label(), "simpler": s.label(),
                      "gaps": [float(top.gap_after), float(s.gap_after)],
