@@ -19,6 +19,7 @@ from .bounded import bounded_nominal
 from .fitting import bootstrap_intervals
 from .identified import check_named
 from .band import fit_nominal_in_band
+from .nested import prefer_simpler
 from .nominal import NominalFit, fit_nominal
 from .outputs import Progress, _Outputs, _say
 from .pulse_reading import one_dof_gain_note, reading_limit, shadowed_by_reading
@@ -243,6 +244,11 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts = break_tie(verdict, verdicts, ranking, train, val, proc, gap_before,
                                   where["noise_floor"], psd_floor, settings, rule, progress,
                                   known)
+    # a law holding a simpler one (a clearance: a spring) named only when proven better
+    verdict, verdicts = prefer_simpler(verdict, verdicts, ranking, structure, train, val,
+                                       proc, gap_before, before_blocks,
+                                       where["noise_floor"], psd_floor, settings, rule,
+                                       known, progress)
     if escaped is not None:
         rule["nominal_escaped"] = escaped
         rule["reason"] = f"{rule.get('reason') or 'no reason given'}; {escaped['text']}"

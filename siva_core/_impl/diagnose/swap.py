@@ -41,6 +41,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .law_match import matched_magnitudes, motion_points, place_motion
 from .model_edit import augmented
+from .nested import nested_effect, nested_swap
 from .budget import clock_of
 from .outputs import Progress, _say
 from .results import Candidate, Location
@@ -94,8 +95,8 @@ def _places(m: Candidate, known: Sequence[Candidate]
 def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording],
                  val: Sequence[Recording], proc: Processing, gap_before: float,
                  before_blocks: np.ndarray, settings: DiagnoseSettings,
-                 known: Sequence[Candidate] = (), progress: Progress | None = None
-                 ) -> list[tuple[int, SetFit]]:
+                 known: Sequence[Candidate] = (), progress: Progress | None = None,
+                 nested_only: bool = False) -> list[tuple[int, SetFit]]:
     """(member index, the set with that member's law swapped or moved, fitted jointly and
     judged on the validation records) for every structural member of ``chosen``: its
     ``swap_kinds`` most promising look-alike kinds at its place, and its
@@ -116,8 +117,10 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
         if m.category != "structure" or k >= len(coeffs) or not coeffs[k]:
             continue
         kinds = _kinds(m.effect.kind, settings)
+        if nested_only:  # the law nested in m's only (``nested``), at m's place
+            kinds = [e for e in kinds if e is nested_effect(m.effect.kind)]
         targets = [(eff, m.loc) for eff in kinds]
-        if settings.swap_places > 0:
+        if settings.swap_places > 0 and not nested_only:
             # the screen's candidates there (not one the nominal model already holds,
             # as a linear damper where it has one), not another member's
             taken = {o.key for j, o in enumerate(chosen.members) if j != k}
@@ -184,7 +187,11 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
             if np.any(np.isfinite(costs)):
                 jobs.append((float(np.nanmin(costs)), eff, loc, aug, names, starts))
         jobs.sort(key=lambda j: j[0])
-        here = [j for j in jobs if j[2].between == m.loc.between][:settings.swap_kinds]
+        here = [j for j in jobs if j[2].between == m.loc.between]
+        simpler = nested_effect(m.effect.kind)  # always fitted (``nested``)
+        here = here[:settings.swap_kinds] + [
+            j for j in here[settings.swap_kinds:] if simpler is not None
+            and j[1].kind == simpler.kind]
         moved = [j for j in jobs if j[2].between != m.loc.between][:settings.swap_places]
         for cost0, eff, loc, aug, names, starts in here + moved:
             # what an element at loc sees (a known single's there) when m is moved
@@ -345,6 +352,22 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
         return True
 
     win, rivals = swap_rivals(chosen, swaps, noise, settings, accept)
+    top = win if win is not None else chosen
+    options = [s for _, s in swaps] + [chosen]
+    if win is not None and any(nested_effect(m.effect.kind) for m in win.members):
+        # the nested law fitted from the named set's own values (the chosen set, fitted
+        # otherwise, is no fair comparison: 17549's greedy spring set)
+        again = member_swaps(win, structure, train, val, proc, gap_before, before_blocks,
+                             settings, known, progress, nested_only=True)
+        options += [s for _, s in again]
+    simpler = nested_swap(top, options, val, proc, settings, accept, rule, progress)
+    if simpler is not None:  # the richer law unproven: the nested one named, it a rival
+        k, win = simpler
+        while len(rivals) <= k:
+            rivals.append([])
+        rivals[k] = [r for r in rivals[k] if r["candidate"] != win.members[k].label()] + [
+            {"candidate": top.members[k].label(), "closure": float(top.closure),
+             "in_set": top.label()}]
     if win is not None:
         _say(progress, f"swap: {win.label()} closes {win.closure:.3f} against "
                        f"{chosen.label()}'s {chosen.closure:.3f}")
