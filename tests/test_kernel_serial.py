@@ -39,3 +39,35 @@ def test_threads_simulating_at_once_equal_one_after_another(lono_model: Structur
         assert np.array_equal(a, b)
     # and a set is the same alone as inside its batch
     assert np.array_equal(run(thetas[2][3:4])[0], alone[2][3])
+
+
+def test_a_lone_batch_split_over_threads_equals_one_call(lono_model: Structure,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """A lone caller's batch runs as chunks on several threads (the kernel being serial);
+    every set is computed by the same code, so the split changes no bit."""
+    pytest.importorskip("numba")
+    from siva_core._impl.simulate import numba_kernel
+
+    base = np.array([3.84, 19273.0, 0.786, 1947.6, 2.76e7, 2.0])
+    theta = base[None] * np.linspace(0.8, 1.2, 11)[:, None]
+    t = np.arange(2000) / 2048.0
+    F = np.zeros((len(t), 2))
+    F[100:104, 0] = [80.0, 250.0, 160.0, 20.0]
+
+    def run() -> np.ndarray:
+        return simulate(lono_model, theta, t, np.zeros(2), np.zeros(2), F, substeps=2,
+                        backend="numba").a
+
+    chunks: list[tuple[int, int]] = []
+    original = numba_kernel._run_chunked
+
+    def spy(run_chunk, B: int) -> None:
+        original(lambda a, b: (chunks.append((a, b)), run_chunk(a, b))[1], B)
+
+    monkeypatch.setattr(numba_kernel, "_thread_count", lambda: 1)
+    one = run()
+    monkeypatch.setattr(numba_kernel, "_thread_count", lambda: 3)
+    monkeypatch.setattr(numba_kernel, "_run_chunked", spy)
+    split = run()
+    assert sorted(chunks) == [(0, 4), (4, 7), (7, 11)]
+    assert np.array_equal(one, split)
