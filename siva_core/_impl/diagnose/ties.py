@@ -147,6 +147,7 @@ def _refit_all(c: Candidate, records: Sequence[Recording], proc: Processing,
     from ..refine import refine
 
     recs = c.correct(records)
+
     def keep(stage: int, last: bool, it: int, cost: float, prob: Any = None) -> bool:
         assert seen is not None
         seen.append((stage, last, it, cost))
