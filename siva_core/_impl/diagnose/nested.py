@@ -15,7 +15,7 @@ new law with such a limit is covered without a list), the simpler law at the sam
 is fitted too (a single verdict: its own single fit, or one refine from the richer
 fit's values; a set member: always among the swapped kinds, ``swap.member_swaps``), and
 the richer law is kept only when its gain over the simpler one on the validation records
-is at least ``test_z`` standard errors of the noise (``set_test.gain_z``, the statistic
+is at least ``test_z`` standard errors of the noise (``set_test.BlockTest``, the statistic
 the set search compares sets with).  Otherwise the simpler law is named when it passes
 the checks every verdict passes, and the richer one is listed as its rival with its
 closure (the data cannot separate them); when the simpler one does not pass them the
@@ -38,7 +38,7 @@ from .outputs import Progress, _say
 from .results import Candidate
 from .scoring import judge
 from .set_members import below_noise, contributions, floor_for
-from .set_test import gain_z, residual
+from .set_test import BlockTest
 from .settings import FAST, DiagnoseSettings
 from .verdict import decide
 
@@ -91,14 +91,6 @@ def nested_effect(kind: str) -> Effect | None:
     """The simpler registered effect nested in ``kind``'s law, or None."""
     got = simpler_law(kind)
     return EFFECTS[got[0]] if got is not None else None
-
-
-def richer_better(simple: Any, rich: Any, val: Sequence[Recording], proc: Processing,
-                  settings: DiagnoseSettings) -> float:
-    """``rich``'s gain over ``simple`` on the validation records in standard errors of
-    the noise (``set_test.gain_z``); nan when either cannot be simulated."""
-    return gain_z(residual(simple, val, proc), residual(rich, val, proc),
-                  settings.test_blocks)
 
 
 def _fit_simple(rich: Candidate, eff: Effect, structure: Structure,
@@ -158,7 +150,7 @@ def prefer_simpler(verdict: Candidate | None, verdicts: list[Candidate],
                              before_blocks, settings, progress)
     if simple is None or not np.isfinite(simple.gap_after):
         return verdict, verdicts
-    z = richer_better(simple, verdict, val, proc, settings)
+    z = BlockTest(val, proc, settings.test_blocks).z(simple, verdict)
     entry: dict[str, Any] = {"richer": verdict.label(), "simpler": simple.label(),
                              "gaps": [float(verdict.gap_after), float(simple.gap_after)],
                              "z": round(float(z), 2) if np.isfinite(z) else None,
@@ -209,6 +201,7 @@ def nested_swap(top: Any, options: Sequence[Any], val: Sequence[Recording],
     comparisons."""
     labels = [m.label() for m in top.members]
     compared = []
+    test = BlockTest(val, proc, settings.test_blocks)  # ``top`` simulated once
     for k, m in enumerate(top.members):
         eff = nested_effect(m.effect.kind) if m.category == "structure" else None
         if eff is None:
@@ -220,7 +213,7 @@ def nested_swap(top: Any, options: Sequence[Any], val: Sequence[Recording],
                 and [x.label() for i, x in enumerate(s.members) if i != k]
                 == [x for i, x in enumerate(labels) if i != k]]
         for s in sorted(same, key=lambda s: s.gap_after):
-            z = richer_better(s, top, val, proc, settings)
+            z = test.z(s, top)
             entry = {"richer": top.label(), "simpler": s.label(),
                      "gaps": [float(top.gap_after), float(s.gap_after)],
                      "z": round(float(z), 2) if np.isfinite(z) else None,
