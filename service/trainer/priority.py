@@ -37,20 +37,17 @@ POLL_S = 0.25
 
 
 def numba_runs_concurrently() -> bool:
-    """True when numba's threading layer accepts parallel kernels launched from several
-    threads at once (omp, tbb; not workqueue), known once a parallel kernel has run."""
-    try:
-        import numba
-
-        return numba.threading_layer() in ("omp", "tbb")
-    except Exception:  # noqa: BLE001 - not initialised yet, or no numba: one at a time
-        return False
+    """True: the simulation kernels are serial and compiled ``nogil`` (branch speed6), so
+    calls from several threads run side by side with no threading layer to ask.  (It used
+    to ask ``numba.threading_layer()``, which raises once no parallel kernel exists: the
+    fits then never ran side by side.)"""
+    return True
 
 
 class RefineQueue:
     """The refinement slot of the process, the most urgent first.  Work is exclusive,
     except per-record fits: up to ``monitor_fits`` of them (of different systems) run at
-    once when numba allows it - a fit is mostly single-threaded, so one at a time would
+    once - a fit is mostly single-threaded, so one at a time would
     leave a core idle, or under load get one thread's share of the machine."""
 
     def __init__(self, monitor_fits: int = 1,

@@ -267,3 +267,22 @@ def test_a_waiting_validation_gives_way_to_its_systems_new_record(monkeypatch):
             assert events == ["fit", "validate headline"]
         finally:
             r.stop(5.0)
+
+
+def test_by_default_two_fits_run_together():
+    """The default check: two per-record fits run side by side - the serial nogil kernel is
+    re-entrant (the former check asked numba's threading layer, which raises when no
+    parallel kernel ever ran, so the fits always ran one at a time)."""
+    q = RefineQueue(monitor_fits=2)
+    release = threading.Event()
+
+    def fit() -> None:
+        with q.hold(MONITOR):
+            release.wait(10)
+    threads = [threading.Thread(target=fit, daemon=True) for _ in range(2)]
+    for t in threads:
+        t.start()
+    _until(lambda: len(q._running) == 2)
+    release.set()
+    for t in threads:
+        t.join(10)

@@ -319,6 +319,7 @@ def run_numba(structure: Any, theta: np.ndarray, dt: float, T: int, Q0: np.ndarr
 _ACTIVE = 0  # kernel calls running now (any thread)
 _ACTIVE_LOCK = threading.Lock()
 _POOL: Any = None
+_POOL_SIZE = 0
 
 
 def _run_chunked(run: Callable[[int, int], None], B: int) -> None:
@@ -328,7 +329,7 @@ def _run_chunked(run: Callable[[int, int], None], B: int) -> None:
     ensemble) would otherwise use one core; callers that already run on the cores side by
     side (the diagnosis's worker threads) keep one chunk each.  Each set is computed by
     the same code whichever chunk holds it: bit-identical to one call."""
-    global _ACTIVE, _POOL
+    global _ACTIVE, _POOL, _POOL_SIZE
     with _ACTIVE_LOCK:
         alone = _ACTIVE == 0
         _ACTIVE += 1
@@ -340,8 +341,9 @@ def _run_chunked(run: Callable[[int, int], None], B: int) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
         with _ACTIVE_LOCK:
-            if _POOL is None or _POOL._max_workers < threads:
+            if _POOL is None or _POOL_SIZE < threads:
                 _POOL = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="siva-kernel")
+                _POOL_SIZE = threads
             pool = _POOL
         edges = np.linspace(0, B, threads + 1).round().astype(int)
         futures = [pool.submit(run, int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])
