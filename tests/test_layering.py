@@ -91,6 +91,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.siva": "moving candidates inside the bounds",
         "siva_core._impl.refine": "every candidate diverging"},
     "tests/test_diagnose_swap.py": {"siva_core._impl.diagnose": "look-alike swaps in a set"},
+    "tests/test_diagnose_sensor_swap.py": {
+        "siva_core._impl.diagnose": "a set's sensor member swapped for its twin fault"},
     "tests/test_diagnose_nested.py": {"siva_core._impl.diagnose": "nested laws"},
     "tests/test_diagnose_swap_place.py": {"siva_core._impl.diagnose": "member moves in a set"},
     "tests/test_diagnose_ties.py": {"siva_core._impl.diagnose": "ties broken on all records"},

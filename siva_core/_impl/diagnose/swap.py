@@ -47,6 +47,7 @@ from .outputs import Progress, _say
 from .results import Candidate, Location
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .set_members import contributions, member_coefficients, shown
+from .sensor_swap import sensor_swaps
 from .set_test import residual
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
@@ -315,6 +316,9 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     t0 = time.perf_counter()
     swaps = member_swaps(chosen, structure, train, val, proc, gap_before, before_blocks,
                          settings, known, progress)
+    # the sensor member's twin fault too (``sensor_swap``: acc gain <-> force gain)
+    swaps += sensor_swaps(chosen, train, val, proc, gap_before, before_blocks, settings,
+                          progress)
     rule["swap_s"] = time.perf_counter() - t0  # CPU share of the swaps (must-show 3)
     _say(progress, f"swaps: {len(swaps)} fitted in {rule['swap_s']:.1f} s")
     if not swaps:
