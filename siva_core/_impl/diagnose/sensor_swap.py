@@ -115,8 +115,8 @@ def sensor_swaps(chosen: SetFit, train: Sequence[Recording], val: Sequence[Recor
     out: list[tuple[int, SetFit]] = []
     for k, m in enumerate(chosen.members):
         other = twin(m, train, aug.dofs)
-        if other is None:
-            continue
+        if other is None or m.reading or explained_by_reading(m, train, aug, chosen.theta):
+            continue  # a gain the pulse's reading explains is a nuisance: no twin fault
         nfev = max(10, settings.fit_nfev // 2)
         try:  # the structural model on the raw records, the twin's value fitted with it
             got = None

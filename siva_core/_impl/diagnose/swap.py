@@ -286,9 +286,10 @@ def swap_rivals(chosen: SetFit, swaps: Sequence[tuple[int, SetFit]], noise: floa
 
 
 def _moved(s: SetFit, chosen: SetFit) -> bool:
-    """Whether a member of ``s`` stands at a place none of ``chosen``'s members has."""
-    return bool({m.loc.between for m in s.members if m.category == "structure"}
-                - {m.loc.between for m in chosen.members if m.category == "structure"})
+    """Whether a member of ``s`` stands at a place none of ``chosen``'s members has (a
+    sensor twin, ``sensor_swap``, at another channel: as much freedom, so all records too)."""
+    return bool({m.loc.between for m in s.members}
+                - {m.loc.between for m in chosen.members})
 
 
 def all_records(s: SetFit, records: Sequence[Recording], proc: Processing) -> float:
