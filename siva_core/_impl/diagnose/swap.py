@@ -47,6 +47,7 @@ from .outputs import Progress, _say
 from .results import Candidate, Location
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .set_members import contributions, member_coefficients, shown
+from .sensor_swap import sensor_swaps
 from .set_test import residual
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
@@ -285,9 +286,10 @@ def swap_rivals(chosen: SetFit, swaps: Sequence[tuple[int, SetFit]], noise: floa
 
 
 def _moved(s: SetFit, chosen: SetFit) -> bool:
-    """Whether a member of ``s`` stands at a place none of ``chosen``'s members has."""
-    return bool({m.loc.between for m in s.members if m.category == "structure"}
-                - {m.loc.between for m in chosen.members if m.category == "structure"})
+    """Whether a member of ``s`` stands at a place none of ``chosen``'s members has (a
+    sensor twin, ``sensor_swap``, at another channel: as much freedom, so all records too)."""
+    return bool({m.loc.between for m in s.members}
+                - {m.loc.between for m in chosen.members})
 
 
 def all_records(s: SetFit, records: Sequence[Recording], proc: Processing) -> float:
@@ -315,6 +317,9 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     t0 = time.perf_counter()
     swaps = member_swaps(chosen, structure, train, val, proc, gap_before, before_blocks,
                          settings, known, progress)
+    # the sensor member's twin fault too (``sensor_swap``: acc gain <-> force gain)
+    swaps += sensor_swaps(chosen, train, val, proc, gap_before, before_blocks, settings,
+                          progress)
     rule["swap_s"] = time.perf_counter() - t0  # CPU share of the swaps (must-show 3)
     _say(progress, f"swaps: {len(swaps)} fitted in {rule['swap_s']:.1f} s")
     if not swaps:
