@@ -33,6 +33,7 @@ from .verdict import decide, simplest_same
 from .sets import worth_pairing, choose_set
 from .without_member import KnownFits
 from .ties import break_tie
+from .tie_pairs import tie_pairs, tied_leads
 from .weak_lead import tentative_lead
 from .where import _explain, spectral_noise_floor, where_analysis
 
@@ -100,6 +101,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     cur_gap, cur_blocks = gap_before, before_blocks
     sensor_only = False
     stage_s, first_cut = 0.0, False
+    tied_first: list[Candidate] = []
     for n in range(n_stages):
         tag = "" if n == 0 else f"stage{n + 1}_"
         # a further stage costs about what the last one did; not opened past the budget
@@ -155,6 +157,9 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
             v = simplest_same(first, [c for c in rk if c is not first
                                       and np.isfinite(c.closure) and not c.reading])
             stages[-1]["tentative"] = v.label()
+            if n == 0:  # the leads it does not separate from: paired too (tie_pairs)
+                tied_first = tied_leads(rk, v, noise, settings)
+                stages[-1]["tied_leads"] = [c.label() for c in tied_first]
             if part is not None and not partial_lead(r, rk, settings):
                 stages[-1]["tentative_large_part"] = part
                 _say(progress, f"stage {n + 1}: {v.label()} closes {v.closure:.3f} of the "
@@ -197,6 +202,13 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
         cur_struct = v.structure
         cur_fit = NominalFit(v.theta, v.train_cost, f"with {v.label()}")
         cur_gap, cur_blocks = validation_gap(cur_struct, v.theta, cur_val, proc)
+    # the first stage's tied leads with what the later stages found (``tie_pairs``)
+    tied = tie_pairs(tied_first, [*verdicts[1:], *refused], settings) \
+        if verdicts and stages[0].get("tentative") else []
+    if tied:
+        stages[0]["tie_pairs"] = [f"{a.label()} + {b.label()}" for a, b in tied]
+        _say(progress, "the first stage's tied leads paired with the later effects: "
+                       + ", ".join(stages[0]["tie_pairs"]))
     if settings.backward:
         # skipped past the budget: the greedy set is then judged by the set rule, which
         # needs every member (``sets.choose_set``'s every_member_needed)
@@ -237,7 +249,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
         psd_floor, settings, progress, later, cands,
-        frozenset(k for k, r in shadowed.items() if r), refused, known)
+        frozenset(k for k, r in shadowed.items() if r), refused, known, tied)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]

@@ -127,7 +127,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                settings: DiagnoseSettings, progress: Progress | None = None,
                later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = (),
                shadowed_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset(),
-               refused: Sequence[Candidate] = (), known: KnownFits | None = None
+               refused: Sequence[Candidate] = (), known: KnownFits | None = None,
+               tied: Sequence[tuple[Candidate, Candidate]] = ()
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
@@ -140,7 +141,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     them: in a set it is the records' nuisance (``nuisance_reading``).
     ``refused``: the best fits of a later stage that named nothing, each paired with the
     one structural effect named before it.  ``known``: the fits without a member
-    (``without_member``), for the contributions."""
+    (``without_member``), for the contributions.  ``tied``: more pairs (``tie_pairs``)."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -188,6 +189,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # below the faint floor, was never paired with the quadratic damper m1-m2)
         if len(verdicts) == 1 and verdicts[0].category == "structure":
             extra += [(verdicts[0], c) for c in refused]
+        extra += list(tied)  # the tied first leads with the later effects (tie_pairs)
         lead, mates = partners(ranking, members, settings)
         faults = [] if settled else joiners(ranking, verdicts, scanned)
         if settled:

@@ -177,6 +177,10 @@ class DiagnoseSettings:
         the best fit there is named (``ties``: the same law at a neighbouring place, or a
         one-coefficient look-alike, has the same freedom, so all records compare them
         fairly).  0 = off.
+    tie_leads: a first stage whose lead was kept tentatively while other structural
+        singles tied with it (``tie_pairs``): at most this many of them are each paired
+        with the later stages' effects, jointly refitted (``tie_pair_fits`` pair fits at
+        most), and judged by the set rule.  0 = off.
     place_lookalikes: when the place check has run for the leading structural kind, at
         most this many look-alike kinds fitted at the leader's place whose validation gap
         is within ``swap_noise`` x the noise floor of its gap (the data cannot separate
@@ -253,6 +257,8 @@ class DiagnoseSettings:
     swap_places: int = 1
     swap_noise: float = 1.0
     tie_contenders: int = 3
+    tie_leads: int = 2
+    tie_pair_fits: int = 4
     place_lookalikes: int = 2
     budget_s: float | None = 240.0
     budget_cpu: bool = False
