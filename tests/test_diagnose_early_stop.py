@@ -174,7 +174,7 @@ def test_fits_stopped_against_one_leader_share_its_head_costs():
     once per candidate; the costs are those a fresh one computes, bit for bit, and a
     leader whose fit moved gets new ones."""
     from siva_core._impl.diagnose.early_stop import _HeadCosts, head_costs
-    from siva_core._impl.refine import OutputErrorProblem
+    from siva_core import OutputErrorProblem
 
     sdof, train, proc = _case()
     winner = _fit("cubic_spring", 0.5 * K3, math.inf, sdof, train, proc)
