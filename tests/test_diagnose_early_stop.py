@@ -166,3 +166,28 @@ def test_a_stopped_set_the_validation_does_not_show_losing_is_fitted_again():
     assert again == [near]
     assert out[0] is best and out[2] is far
     assert not out[1].stopped and out[1].gap_after == 0.010
+
+
+def test_fits_stopped_against_one_leader_share_its_head_costs():
+    """Every fit stopped against the same leader (same fit, records, processing) gets the
+    same ``_HeadCosts``: the leader's pilot and heads are simulated once per stage, not
+    once per candidate; the costs are those a fresh one computes, bit for bit, and a
+    leader whose fit moved gets new ones."""
+    from siva_core._impl.diagnose.early_stop import _HeadCosts, head_costs
+    from siva_core import OutputErrorProblem
+
+    sdof, train, proc = _case()
+    winner = _fit("cubic_spring", 0.5 * K3, math.inf, sdof, train, proc)
+    shared = head_costs(winner, train, proc)
+    assert head_costs(winner, list(train), proc) is shared
+    prob = OutputErrorProblem.build(winner.structure, train, proc,
+                                    theta_ref=winner.theta[None]).head(
+        [len(r.target) // 3 for r in OutputErrorProblem.build(
+            winner.structure, train, proc, theta_ref=winner.theta[None]).records])
+    c = shared.cost(prob)
+    assert np.isfinite(c) and c == _HeadCosts(winner, train, proc).cost(prob)
+    assert shared.cost(prob) == c  # memoised
+    moved = Candidate(winner.effect, winner.loc, {}, structure=winner.structure,
+                      theta=winner.theta * 1.01)
+    assert head_costs(moved, train, proc) is not shared
+    assert head_costs(winner, train, Processing.auto(train, sdof.dofs)) is not shared

@@ -20,6 +20,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.diagnose.nominal": "the nominal start's plausibility and its fix"},
     "tests/test_simulate.py": {"siva_core._impl.simulate": "the numba kernel cache"},
     "tests/test_kernel_serial.py": {"siva_core._impl.simulate": "which numba kernel runs"},
+    "tests/test_diagnose_pilot_reuse.py": {
+        "siva_core._impl.simulate": "the remembered substep choice (pilot_memo)"},
     "tests/test_diagnose_gain_reading.py": {
         "siva_core._impl.diagnose.pulse_reading": "reading_limit on synthetic hits"},
     "tests/test_diagnose_sensor2.py": {

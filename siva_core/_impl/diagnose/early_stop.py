@@ -23,6 +23,7 @@ class _HeadCosts:
     def __init__(self, leader: Candidate, train: Sequence[Recording], proc: Processing
                  ) -> None:
         self.leader, self.train, self.proc = leader, list(train), proc
+        self.theta = np.array(leader.theta, dtype=float)  # the leader's fit, as it was
         self._full: Any = None
         self._cost: dict[tuple[int, ...], float] = {}
 
@@ -35,12 +36,39 @@ class _HeadCosts:
                 if self._full is None:
                     self._full = OutputErrorProblem.build(
                         self.leader.structure, self.train, self.proc,
-                        theta_ref=self.leader.theta[None])
+                        theta_ref=self.theta[None])
                 head = self._full.head(list(key))
-                self._cost[key] = float(head.cost(self.leader.theta[None])[0])
+                self._cost[key] = float(head.cost(self.theta[None])[0])
             except Exception:  # noqa: BLE001 - no comparison on this horizon
                 self._cost[key] = math.nan
         return self._cost[key]
+
+
+#: the leaders' head costs, shared by every fit stopped against the same leader (speed:
+#: a stage's fits after its leader all grow the same horizons, and each rebuilt the
+#: leader's problem -- a full-length substep pilot -- and simulated its heads again)
+_SHARED: list[tuple[tuple[Any, ...], _HeadCosts]] = []
+_SHARED_MAX = 8
+
+
+def head_costs(leader: Candidate, train: Sequence[Recording], proc: Processing
+               ) -> _HeadCosts:
+    """The ``_HeadCosts`` of ``leader`` at its current fit on ``train`` through ``proc``,
+    shared while they are unchanged (the same objects and the same theta, bit for bit:
+    the costs are then the same numbers)."""
+    recs = list(train)
+    theta = np.asarray(leader.theta, dtype=float)
+    key = (id(leader.structure), theta.tobytes(), theta.shape, id(proc),
+           tuple(id(r) for r in recs))
+    for k, h in _SHARED:
+        if (k == key and h.leader.structure is leader.structure and h.proc is proc
+                and len(h.train) == len(recs)
+                and all(a is b for a, b in zip(h.train, recs))):
+            return h
+    h = _HeadCosts(leader, recs, proc)
+    _SHARED.append((key, h))
+    del _SHARED[:-_SHARED_MAX]
+    return h
 
 
 def cannot_win(leader_cost: float, settings: DiagnoseSettings,
@@ -68,7 +96,7 @@ def cannot_win(leader_cost: float, settings: DiagnoseSettings,
         return None
     limit = min(settings.stop_ratio * leader_cost,
                 gain_limit(base_cost, leader_cost, settings.stop_ratio))
-    heads = (_HeadCosts(leader, train, proc) if leader is not None and train is not None
+    heads = (head_costs(leader, train, proc) if leader is not None and train is not None
              and proc is not None and leader.category == "structure"
              and leader.structure is not None and leader.theta is not None else None)
 

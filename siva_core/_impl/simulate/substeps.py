@@ -8,6 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .backends import run
+from .pilot_memo import memo_key, recall, remember
 
 #: default target for omega*h in the automatic choice of substeps (see ``auto_substeps``)
 OMEGA_H = 0.05
@@ -65,6 +66,23 @@ def pilot_substeps(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
         if force is None:
             raise ValueError("auto_substeps needs n_samples when there is no force")
         n_samples = len(force)
+    key = memo_key(structure, th, dt, q0, v0, force, n_samples, omega_h, backend,
+                   max_substeps, interp, real_h)
+    known = recall(key, structure)
+    if known is not None:  # the same pilot ran before: its choice, without running it
+        return known, None
+    m, run_out = _pilot(structure, th, dt, q0, v0, force, n_samples, omega_h, backend,
+                        max_substeps, interp, weight, rho, m, pilot_out)
+    remember(key, structure, m)
+    return m, run_out
+
+
+def _pilot(structure: Any, th: np.ndarray, dt: float, q0: Any, v0: Any,
+           force: np.ndarray | None, n_samples: int, omega_h: float, backend: str,
+           max_substeps: int, interp: str, weight: float, rho: float, m: int,
+           pilot_out: list[Any] | None) -> tuple[int, Any]:
+    """The pilot runs of ``pilot_substeps`` from the linear choice ``m`` (rate ``rho``)."""
+    n = structure.n_dof
     idx = sorted({0, *np.argmax(th, axis=0).tolist(), *np.argmin(th, axis=0).tolist()})
     sub = th[idx]
     Q0 = np.broadcast_to(np.asarray(q0, dtype=float), (th.shape[0], n))[idx].copy()
