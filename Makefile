@@ -24,8 +24,9 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/siva serve --demo --host 127.0.0.1 --port $${PORT:-8000} --data-dir $${SIVA_DATA_DIR:-./siva-data}
 
+# --durations: the slowest tests named in every CI log (the default suite's 10-minute budget)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''
