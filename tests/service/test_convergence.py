@@ -48,7 +48,9 @@ def _converged_with(n: int):
 def test_duffing_truth_inside_ci95(srv, spec_of, duffing, poll):
     with srv.client() as c:
         _register_and_upload(c, spec_of, duffing)
-        est = poll(c, "/v1/systems/duffing/estimate", _converged_with(60), timeout=240, every=1)
+        # an upper bound, not a speed claim: idle CI passed within 240 s; on a loaded
+        # machine (a benchmark beside CI, Ray's workers) 240 s was measured too short
+        est = poll(c, "/v1/systems/duffing/estimate", _converged_with(60), timeout=600, every=1)
     assert est["ensemble_source"] == "approach_II"
     assert est["n_recordings"] == {"train": 1, "validation": 2}
     for p in ("k", "k_nl"):
