@@ -57,7 +57,10 @@ def test_a_remembered_substep_choice_skips_the_pilot_and_changes_no_bit(
     start = theta * 1.03
     pilot_memo.clear()
     first = OutputErrorProblem.build(gen, [rec], theta_ref=start[None], backend=backend)
-    cold = refine(gen, start, [rec], max_nfev=6, backend=backend)
+    # the refine comparison on numba only: the memo is the same code on either backend
+    # (the backend is one field of its key) and a numpy refine took 40 s of the suite
+    refined = backend == "numba"
+    cold = refine(gen, start, [rec], max_nfev=6, backend=backend) if refined else None
     runs: list[int] = []
     real = substeps_mod._pilot
     monkeypatch.setattr(substeps_mod, "_pilot",
@@ -66,9 +69,10 @@ def test_a_remembered_substep_choice_skips_the_pilot_and_changes_no_bit(
     assert not runs and again.records[0].pilot is None  # remembered: no pilot run
     assert again.records[0].substeps == first.records[0].substeps
     assert np.array_equal(again.cost(start[None]), first.cost(start[None]))
-    warm = refine(gen, start, [rec], max_nfev=6, backend=backend)
-    assert not runs
-    assert np.array_equal(warm.theta, cold.theta)
+    if refined:
+        warm = refine(gen, start, [rec], max_nfev=6, backend=backend)
+        assert not runs
+        assert np.array_equal(warm.theta, cold.theta)
     # another set is piloted
     OutputErrorProblem.build(gen, [rec], theta_ref=(theta * 1.05)[None], backend=backend)
     assert runs
