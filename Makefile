@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 LOCK := requirements.lock
 RAY_LOCK := requirements-ray.lock
 
-.PHONY: install run test test-all test-browser test-reliability test-ray test-platform bench \
+.PHONY: install run test test-heavy test-all test-browser test-reliability test-ray test-platform bench \
 	clean lock
 
 $(STAMP): pyproject.toml $(LOCK)
@@ -27,6 +27,10 @@ run: $(STAMP)
 # --durations: the slowest tests named in every CI log (the default suite's 10-minute budget)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q --durations=15
+
+# the end-to-end runs kept out of the default suite's 10-minute budget (CI runs them next)
+test-heavy: $(STAMP)
+	$(BIN)/python -m pytest -q -m heavy --durations=10
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''

@@ -255,6 +255,7 @@ def _check_contract_shape(out: dict) -> None:
     json.dumps(out)  # serialisable
 
 
+@pytest.mark.heavy
 @needs_data
 def test_real_coulomb_example_fast(lono, tmp_path):
     """Coulomb friction NO-ground withheld from the model: found on the 37 N validation

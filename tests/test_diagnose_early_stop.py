@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from siva_core import (EFFECTS, DiagnoseSettings, Processing, Structure, refine,
                        synthetic_impacts, with_effect)
@@ -92,6 +93,7 @@ def test_refine_with_a_stop_that_never_fires_is_unchanged():
     assert c.stopped and c.nfev < a.nfev
 
 
+@pytest.mark.heavy
 def test_a_look_alike_of_the_leader_stopped_early_is_fitted_in_full():
     """The full matrix's large quadratic damper NO-ground on LO-NO: the cubic damper there
     leads (closure 0.99) and the quadratic one's fit, stopped early against it, closed

@@ -8,6 +8,8 @@ import sys
 import warnings
 from pathlib import Path
 
+import pytest
+
 from siva_core._impl.diagnose import DiagnoseSettings
 from siva_core._impl.diagnose.band import fit_nominal_in_band
 from siva_core._impl.diagnose.identified import (PinnedGap, explained_by_nominal,
@@ -37,6 +39,7 @@ def test_kept_when_the_named_effect_still_beats_the_pinned_nominal():
     assert explained_by_nominal(_pin(0.05), 0.035, 2e12, 0.137, 0.0026, s) is not None
 
 
+@pytest.mark.heavy
 def test_seed_17517_gap_is_the_nominal_cubic_spring():
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import scenarios

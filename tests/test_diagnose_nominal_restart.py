@@ -8,6 +8,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from siva_core import Processing, Structure
 from siva_core._impl.diagnose import DiagnoseSettings
@@ -39,6 +40,7 @@ def test_linear_refit_needs_a_nonlinear_element_to_leave_out() -> None:
     assert linear_refit(st, Processing(), []) is None
 
 
+@pytest.mark.heavy
 def test_the_null_whose_cubic_took_the_linear_spring_is_restarted() -> None:
     """21124 (3-DOF frame, known cubic spring m2-m3, nothing withheld): least squares gave
     k_m2m3 = -15 N/m with k3 = 1.0e13 (truth 4.0e4, 8.7e11) and the nominal fit stopped

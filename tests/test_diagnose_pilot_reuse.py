@@ -23,7 +23,7 @@ def _case(lono_model: Structure) -> tuple[Structure, np.ndarray, Recording]:
     return gen, theta, rec
 
 
-@pytest.mark.parametrize("backend", ["numba", "numpy"])
+@pytest.mark.parametrize("backend", ["numba", pytest.param("numpy", marks=pytest.mark.heavy)])
 def test_the_pilots_run_gives_the_same_cost_as_simulating_again(lono_model: Structure,
                                                                 backend: str) -> None:
     gen, theta, rec = _case(lono_model)

@@ -10,6 +10,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from siva_core import Processing, Recording, diagnose
 from siva_core._impl.diagnose import DiagnoseSettings
@@ -82,6 +83,7 @@ def test_reading_difference_is_what_the_two_readings_put_into_a_mode():
         assert math.isclose(ratio, reading_difference(f, fs), rel_tol=0.05), (f, ratio)
 
 
+@pytest.mark.heavy
 def test_no_effect_invented_on_either_seed():
     """End to end: 15114 names nothing (was a channel delay closing 0.973 of a failed
     nominal fit's gap); 15110 names its coulomb alone (was coulomb + force gain 1.029)."""

@@ -31,6 +31,7 @@ def duffing_fit():
     return _fit("duffing.toml", [d / "train_v5.csv"], [d / "val_v3.csv", d / "val_v8.csv"])
 
 
+@pytest.mark.heavy
 def test_duffing_every_approach_beats_table_1(duffing_fit):
     _, est = duffing_fit
     mse = est.result_.metrics["train"]
@@ -39,6 +40,7 @@ def test_duffing_every_approach_beats_table_1(duffing_fit):
     assert est.result_.converged_epoch is not None
 
 
+@pytest.mark.heavy
 def test_duffing_best_within_half_percent(duffing_fit):
     st, est = duffing_fit
     truth = json.loads((DATA / "duffing" / "truth.json").read_text())["truth"]
@@ -50,6 +52,7 @@ def test_duffing_best_within_half_percent(duffing_fit):
         assert out[p]["approach_II"]["ess"] > 1
 
 
+@pytest.mark.heavy
 def test_duffing_validation_and_discriminator_reported(duffing_fit):
     _, est = duffing_fit
     res = est.result_
@@ -62,6 +65,7 @@ def test_duffing_validation_and_discriminator_reported(duffing_fit):
     assert {"least_squares", "sindy"} <= set(res.baselines)
 
 
+@pytest.mark.heavy
 def test_lono_as_measured_best_within_tolerance():
     d = DATA / "lono"
     st, est = _fit("lono.toml", [d / "impact_530N.csv"], [d / "impact_37N.csv", d / "impact_899N.csv"])

@@ -85,6 +85,7 @@ def test_convergence_monitor_waits_for_a_plateau():
     assert 20 <= mon.converged_at < 60
 
 
+@pytest.mark.heavy
 def test_trainer_identifies_linear_oscillator_and_is_deterministic(sdof):
     train, val = [_free_decay(1.0)], [_free_decay(0.4), _free_decay(2.0)]
     settings = SivaSettings.fast(max_epochs=150, conv_min_epochs=30, ensemble_epochs=30)

@@ -33,6 +33,7 @@ def srv(make_server):
     return make_server(env={"SIVA_REFINE_EVERY_S": "2", "SIVA_SNAPSHOT_EVERY": "2"})
 
 
+@pytest.mark.heavy
 def test_best_on_duffing_within_half_a_percent(srv, spec_of, duffing):
     truth = _truth()
     t_start = time.monotonic()

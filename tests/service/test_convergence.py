@@ -45,6 +45,7 @@ def _converged_with(n: int):
                       and all((s.get("n") or 0) >= n for s in e["ensemble"].values()))
 
 
+@pytest.mark.heavy
 def test_duffing_truth_inside_ci95(srv, spec_of, duffing, poll):
     with srv.client() as c:
         _register_and_upload(c, spec_of, duffing)

@@ -52,6 +52,7 @@ def _upload(c, k: float, i: int, role: str) -> None:
     assert r.status_code == 202, r.text
 
 
+@pytest.mark.heavy
 def test_headline_drift_and_idle(srv, poll):
     with srv.client() as c:
         assert c.put("/v1/systems/osc", json=spec()).status_code in (200, 201)
