@@ -36,30 +36,19 @@ URGENT = BEST
 POLL_S = 0.25
 
 
-def numba_runs_concurrently() -> bool:
-    """True: the simulation kernels are serial and compiled ``nogil`` (branch speed6), so
-    calls from several threads run side by side with no threading layer to ask.  (It used
-    to ask ``numba.threading_layer()``, which raises once no parallel kernel exists: the
-    fits then never ran side by side.)"""
-    return True
-
-
 class RefineQueue:
     """The refinement slot of the process, the most urgent first.  Work is exclusive,
     except per-record fits: up to ``monitor_fits`` of them (of different systems) run at
     once - a fit is mostly single-threaded, so one at a time would
     leave a core idle, or under load get one thread's share of the machine."""
 
-    def __init__(self, monitor_fits: int = 1,
-                 concurrent: Callable[[], bool] = numba_runs_concurrently) -> None:
+    def __init__(self, monitor_fits: int = 1) -> None:
         self._cv = threading.Condition()
         self._running: set[tuple[int, int]] = set()
         self._waiting: list[tuple[int, int]] = []     # heap of (priority, ticket)
         self._tickets = itertools.count()
         self._monitoring = 0                           # urgent work waiting or running
         self.monitor_fits = max(1, int(monitor_fits))
-        self._concurrent = concurrent
-        self._concurrent_known = False
 
     def _may_run(self, key: tuple[int, int]) -> bool:
         """(under the condition) ``key`` is the most urgent waiter and the slot allows it."""
@@ -69,11 +58,9 @@ class RefineQueue:
             return True
         if key[0] != MONITOR or any(k[0] != MONITOR for k in self._running):
             return False
-        if len(self._running) >= self.monitor_fits:
-            return False
-        if not self._concurrent_known:
-            self._concurrent_known = self._concurrent()
-        return self._concurrent_known
+        # the simulation kernels are serial and compiled ``nogil`` (branch speed6): fits
+        # in several threads run side by side
+        return len(self._running) < self.monitor_fits
 
     @contextmanager
     def hold(self, priority: int = VALIDATION,

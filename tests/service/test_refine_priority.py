@@ -98,7 +98,7 @@ def test_the_plain_lock_protocol_still_works():
 
 
 def test_fits_of_different_systems_run_together_other_work_alone():
-    q = RefineQueue(monitor_fits=2, concurrent=lambda: True)
+    q = RefineQueue(monitor_fits=2)
     inside, release = threading.Event(), threading.Event()
     order: list[int] = []
 
@@ -123,8 +123,8 @@ def test_fits_of_different_systems_run_together_other_work_alone():
     assert order == [MONITOR, ANCHOR] and not q._running
 
 
-def test_fits_run_one_at_a_time_when_numba_cannot_run_them_together():
-    q = RefineQueue(monitor_fits=2, concurrent=lambda: False)
+def test_fits_run_one_at_a_time_with_one_monitor_fit():
+    q = RefineQueue(monitor_fits=1)
     release = threading.Event()
 
     def fit() -> None:
