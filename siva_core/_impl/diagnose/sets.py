@@ -199,7 +199,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             weak = weak_pairs(ranking, joiners(ranking, verdicts, scanned), nominal_cost,
                               settings)
             rule["no_single_pairs"] = said = [f"{a.label()} + {b.label()}" for a, b in weak]
-            _say(progress, "no single closes much: pairs by train cost " + ", ".join(said))
+            _say(progress, "no single closes much: pairs by train cost "
+                 + (", ".join(said) or "none (no single lowers the train cost enough)"))
             extra += weak
         lead, mates = partners(ranking, members, settings)
         faults = [] if settled else joiners(ranking, verdicts, scanned)
