@@ -137,7 +137,7 @@ def test_a_set_at_the_noise_level_needs_one_noise_floor_per_member():
 
 
 def test_later_structural_fits_paired_with_a_sensor_fault():
-    from siva_core._impl.diagnose.sets import worth_pairing
+    from siva_core._impl.diagnose.grow import worth_pairing
 
     s = DiagnoseSettings()
     cands = []

@@ -9,7 +9,8 @@ way ``pair_fit.fit_pair`` fits a pair: a sensor fault's value is re-tuned with t
 model (``joint_sensor``), a structural member joins the model on the records the set's
 sensor member corrects.  Also here: which singles the pair search pairs beyond the
 combinations of its members (``partners``: the lead with other kinds by train cost;
-``joiners``: sensor faults, fitted or only scanned).  How a set is judged against its
+``joiners``: sensor faults, fitted or only scanned; ``worth_pairing``: a later stage's
+fits paired with the effect named before it).  How a set is judged against its
 sub-sets is ``sets.choose_set``'s business.
 """
 from __future__ import annotations
@@ -298,3 +299,20 @@ def grow_sets(options: Sequence[SetFit], joining: Sequence[Candidate], structure
     origin = {id(f): bc for f, bc in zip(fits, jobs) if f is not None}
     return refit_stopped([f for f in fits if f is not None],
                          lambda o: one(origin[id(o)], math.inf), settings)
+
+
+def worth_pairing(ranking: Sequence[Candidate], train_cost: float,
+                 settings: DiagnoseSettings) -> list[Candidate]:
+    """A later stage's structural fits worth pairing with the effect named before it
+    (a sensor fault, or a structural effect when that stage names nothing): the
+    ``pair_members`` best by train cost (one per kind and place) that lower the stage's
+    starting train cost by ``step_min`` / 2 at least.  Their *validation* closure says
+    little: they were fitted on records corrected with (or a model holding) the first
+    effect fitted without them (joint_sensor's doc: the clearance of seed 13010 closed
+    -0.37 after a sensor fault; branch second: 17278's damper m2-ground, refused alone,
+    completes the pair)."""
+    fits = sorted((c for c in ranking if c.category == "structure" and c.fitted
+                   and np.isfinite(c.train_cost)
+                   and c.train_cost <= (1 - settings.step_min / 2) * train_cost),
+                  key=lambda c: c.train_cost)
+    return fits[:settings.pair_members]

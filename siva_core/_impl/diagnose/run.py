@@ -14,6 +14,7 @@ from ..effects import EFFECTS
 from ..recording import Recording
 from ..structure import Structure
 from .budget import Budget
+from .grow import worth_pairing
 from .elimination import without_first
 from .bounded import bounded_nominal
 from .fitting import bootstrap_intervals
@@ -30,11 +31,12 @@ from .set_test import one_value_separation
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
 from .verdict import decide, simplest_same
-from .sets import worth_pairing, choose_set
+from .sets import choose_set
 from .without_member import KnownFits
 from .ties import break_tie
 from .tie_pairs import tie_pairs, tied_leads
 from .weak_lead import tentative_lead
+from .no_single import no_single_closes, train_lead
 from .where import _explain, spectral_noise_floor, where_analysis
 
 from .stage import Fraction, _stage
@@ -153,12 +155,26 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                 and n + 1 < n_stages:
             # a significant part of a larger gap: keep it tentatively and look for the
             # rest; the set is named only if together they reach closure_min
-            first = tentative_lead(rk, noise, settings)  # ties on val: by train cost
+            first = val_lead = tentative_lead(rk, noise, settings)  # val ties: train cost
+            # no single closes much of a gap many times the noise: the train records rank
+            # what a single explains (``no_single``); the validation leader is paired too
+            by_train = train_lead(rk, first, cur_fit.train_cost, settings) \
+                if n == 0 and no_single_closes(rk, cur_gap, noise, settings) else None
+            if by_train is not None:
+                stages[-1]["train_lead"] = f"{by_train.label()} for {first.label()}"
+                _say(progress, f"stage 1: no single closes {settings.step_min:g} of the "
+                               f"gap; {by_train.label()} lowers the train cost most "
+                               f"({cur_fit.train_cost:.4g} -> {by_train.train_cost:.4g}): "
+                               f"kept instead of {first.label()}")
+                first = by_train
             v = simplest_same(first, [c for c in rk if c is not first
                                       and np.isfinite(c.closure) and not c.reading])
             stages[-1]["tentative"] = v.label()
             if n == 0:  # the leads it does not separate from: paired too (tie_pairs)
                 tied_first = tied_leads(rk, v, noise, settings)
+                if by_train is not None and all(c.key != val_lead.key for c in tied_first) \
+                        and val_lead.key != v.key:
+                    tied_first = [val_lead, *tied_first]
                 stages[-1]["tied_leads"] = [c.label() for c in tied_first]
             if part is not None and not partial_lead(r, rk, settings):
                 stages[-1]["tentative_large_part"] = part
@@ -249,7 +265,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts, set_rule = choose_set(
         verdict, verdicts, ranking, structure, train, val, proc, gap_before, before_blocks,
         psd_floor, settings, progress, later, cands,
-        frozenset(k for k, r in shadowed.items() if r), refused, known, tied)
+        frozenset(k for k, r in shadowed.items() if r), refused, known, tied, train_cost)
     rule.update(set_rule)
     if set_rule.get("reason"):
         rule["reason"] = set_rule["reason"]

@@ -24,6 +24,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .grow import grow_sets, joiners, partners, refit_from_lead, second_leads
+from .no_single import no_single_closes, weak_pairs
 from .outputs import Progress, _say
 from .pair_fit import best_known, fit_pair
 from .parallel import run_each, worker_count
@@ -128,7 +129,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                later: Sequence[Candidate] = (), scanned: Sequence[Candidate] = (),
                shadowed_keys: frozenset[tuple[str, tuple[str, str]]] = frozenset(),
                refused: Sequence[Candidate] = (), known: KnownFits | None = None,
-               tied: Sequence[tuple[Candidate, Candidate]] = ()
+               tied: Sequence[tuple[Candidate, Candidate]] = (),
+               nominal_cost: float = math.nan
                ) -> tuple[Candidate | None, list[Candidate], dict[str, object]]:
     """Compare the single verdict, the greedy stages' set and the joint pair fits by their
     validation gaps (module doc); returns (verdict, named effects, rule entries).
@@ -141,7 +143,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     them: in a set it is the records' nuisance (``nuisance_reading``).
     ``refused``: the best fits of a later stage that named nothing, each paired with the
     one structural effect named before it.  ``known``: the fits without a member
-    (``without_member``), for the contributions.  ``tied``: more pairs (``tie_pairs``)."""
+    (``without_member``), for the contributions.  ``tied``: more pairs (``tie_pairs``).
+    ``nominal_cost``: the nominal train cost (``no_single.weak_pairs``)."""
     from itertools import combinations
 
     from .verdict import _consistent
@@ -190,6 +193,15 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         if len(verdicts) == 1 and verdicts[0].category == "structure":
             extra += [(verdicts[0], c) for c in refused]
         extra += list(tied)  # the tied first leads with the later effects (tie_pairs)
+        # ranked by train cost, unless the greedy stages' set already closes enough
+        if no_single_closes(ranking, gap_before, noise, settings) and not any(
+                o.closure >= settings.tentative_closure for o in options):
+            weak = weak_pairs(ranking, joiners(ranking, verdicts, scanned), nominal_cost,
+                              settings)
+            rule["no_single_pairs"] = said = [f"{a.label()} + {b.label()}" for a, b in weak]
+            _say(progress, "no single closes much: pairs by train cost "
+                 + (", ".join(said) or "none (no single lowers the train cost enough)"))
+            extra += weak
         lead, mates = partners(ranking, members, settings)
         faults = [] if settled else joiners(ranking, verdicts, scanned)
         if settled:
@@ -384,19 +396,3 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         return verdict, [verdict], rule
     return None, [], rule
 
-
-def worth_pairing(ranking: Sequence[Candidate], train_cost: float,
-                 settings: DiagnoseSettings) -> list[Candidate]:
-    """A later stage's structural fits worth pairing with the effect named before it
-    (a sensor fault, or a structural effect when that stage names nothing): the
-    ``pair_members`` best by train cost (one per kind and place) that lower the stage's
-    starting train cost by ``step_min`` / 2 at least.  Their *validation* closure says
-    little: they were fitted on records corrected with (or a model holding) the first
-    effect fitted without them (joint_sensor's doc: the clearance of seed 13010 closed
-    -0.37 after a sensor fault; branch second: 17278's damper m2-ground, refused alone,
-    completes the pair)."""
-    fits = sorted((c for c in ranking if c.category == "structure" and c.fitted
-                   and np.isfinite(c.train_cost)
-                   and c.train_cost <= (1 - settings.step_min / 2) * train_cost),
-                  key=lambda c: c.train_cost)
-    return fits[:settings.pair_members]

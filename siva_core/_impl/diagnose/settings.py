@@ -181,6 +181,10 @@ class DiagnoseSettings:
         singles tied with it (``tie_pairs``): at most this many of them are each paired
         with the later stages' effects, jointly refitted (``tie_pair_fits`` pair fits at
         most), and judged by the set rule.  0 = off.
+    weak_pair_fits: when no single closes ``step_min`` of a gap at least ``faint_noise`` x
+        the noise floor, at most this many more pairs of the singles that explain part of
+        the *train* records (by train cost) with each other and the joining sensor faults
+        (``no_single``).  0 = off.
     place_lookalikes: when the place check has run for the leading structural kind, at
         most this many look-alike kinds fitted at the leader's place whose validation gap
         is within ``swap_noise`` x the noise floor of its gap (the data cannot separate
@@ -259,6 +263,7 @@ class DiagnoseSettings:
     tie_contenders: int = 3
     tie_leads: int = 2
     tie_pair_fits: int = 4
+    weak_pair_fits: int = 8
     place_lookalikes: int = 2
     budget_s: float | None = 240.0
     budget_cpu: bool = False
