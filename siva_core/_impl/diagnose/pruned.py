@@ -79,4 +79,5 @@ def _fit(s: SetFit, keep: Sequence[int], structure: Structure, train: Sequence[R
                  structure=base, names=dict(last.names), theta=np.asarray(theta, float),
                  fitted=True, amplitudes=last.amplitudes, members=members, sensor=sensor,
                  note=f"{s.label()} without its members that do not show")
+    _say(progress, f"set {s.label()}: a member does not show, re-fitted without it")
     return finish_set(out, cost, res, val, proc, gap_before, before_blocks, progress)
