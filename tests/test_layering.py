@@ -95,6 +95,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.siva": "moving candidates inside the bounds",
         "siva_core._impl.refine": "every candidate diverging"},
     "tests/test_diagnose_swap.py": {"siva_core._impl.diagnose": "look-alike swaps in a set"},
+    "tests/test_diagnose_placeriv.py": {
+        "siva_core._impl.diagnose": "a set without its silent members, a swapped law moved"},
     "tests/test_diagnose_sensor_swap.py": {
         "siva_core._impl.diagnose.sensor_swap": "a set's sensor member and its twin fault",
         "siva_core._impl.diagnose.joint_sensor": "the acc gain's value fitted with the set",

@@ -27,6 +27,7 @@ from .pulse_reading import one_dof_gain_note, reading_limit, shadowed_by_reading
 from .residue import sensor_residue
 from .results import Candidate, Diagnosis
 from .scoring import validation_gap
+from .set_members import fill_closures
 from .set_test import one_value_separation
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
@@ -284,6 +285,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
     verdict, verdicts = check_named(verdict, verdicts, structure, theta, train_cost,
                                     gap_before, train, val, proc, psd_floor, settings, rule,
                                     progress)
+    fill_closures(verdicts, ranking)  # a swapped or moved member: never closure None
     rule["budget"] = clock.as_rule()
     if clock.reached:  # said plainly: the search was cut, the verdict is what was checked
         lead = rule.get("budget_unchecked")

@@ -187,3 +187,15 @@ def with_embedded(fits: Sequence[SetFit], verdicts: Sequence[Candidate]) -> list
         if hidden:
             s.members = [*hidden, *s.members]
     return list(fits)
+
+
+def fill_closures(members: Sequence[Candidate], singles: Sequence[Candidate]) -> None:
+    """A named member whose candidate has no closure of its own (a law swapped or moved
+    in the set, ``swap``, has no single fit) gets its single fit's closure of the nominal
+    gap when the first stage fitted that kind there, else what the set loses without it
+    (``closure_added``): a named effect never reports no closure (fresh seed 17676's
+    damper m2-ground reported None)."""
+    alone = {c.key: c.closure for c in singles if np.isfinite(c.closure)}
+    for m in members:
+        if not np.isfinite(m.closure):
+            m.closure = float(alone.get(m.key, m.closure_added))

@@ -32,6 +32,7 @@ from .pulse_reading import explained_by_reading, nuisance_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
+from .pruned import without_members
 from .set_members import contributions, member_coefficients, shown, with_embedded
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
@@ -270,8 +271,9 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     chosen_own: list[str] = []
     chosen_nuisance: list[Candidate] = []
     tried = []
-    for s in sorted(options, key=lambda s: s.gap_after if np.isfinite(s.gap_after)
-                    else math.inf):
+    queue = sorted(options, key=_gap)
+    while queue:
+        s = queue.pop(0)
         alone = [single_gap.get(m.key, gap_before) for m in s.members]
         # without a member, the set is (about) the other member alone
         without = [min(alone[:k] + alone[k + 1:], default=gap_before)
@@ -330,6 +332,14 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                 tried[-1]["own_channel"] = own
             if low:
                 tried[-1]["checks"]["above_noise_each"] = False
+                # the set without the members that do not show, judged in its turn
+                less = without_members(s, [k for k, m in enumerate(s.members)
+                                           if m.label() in low], structure, train, val,
+                                       proc, gap_before, before_blocks, settings, progress)
+                if less is not None and np.isfinite(less.gap_after) and frozenset(
+                        m.key for m in less.members) not in fitted_sets:
+                    fitted_sets[frozenset(m.key for m in less.members)] = less
+                    queue = sorted([*queue, less], key=_gap)
                 continue
             chosen, chosen_without, chosen_own = s, without, own
             if nuisance is not None:

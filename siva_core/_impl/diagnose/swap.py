@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Collection, Sequence
 
 import numpy as np
 
@@ -49,6 +49,7 @@ from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .set_members import contributions, member_coefficients, shown
 from .sensor_swap import sensor_swaps
 from .set_test import residual
+from .swap_moves import merge_moved, swapped_members
 from .settings import DiagnoseSettings
 from .verdict import LOOK_ALIKES, same_law
 
@@ -97,13 +98,15 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
                  val: Sequence[Recording], proc: Processing, gap_before: float,
                  before_blocks: np.ndarray, settings: DiagnoseSettings,
                  known: Sequence[Candidate] = (), progress: Progress | None = None,
-                 nested_only: bool = False) -> list[tuple[int, SetFit]]:
+                 nested_only: bool = False, moves_only: Collection[int] = ()
+                 ) -> list[tuple[int, SetFit]]:
     """(member index, the set with that member's law swapped or moved, fitted jointly and
     judged on the validation records) for every structural member of ``chosen``: its
     ``swap_kinds`` most promising look-alike kinds at its place, and its
     ``swap_places`` most promising moves -- its own kind at another place of
     ``known`` -- by the train cost of their starts (module doc).  ``known``: fitted and
-    screened singles, for the places and the laws' shape coefficients."""
+    screened singles, for the places and the laws' shape coefficients.  ``moves_only``:
+    only these members, and only moved (``swap_moves``: a law that won its swap)."""
     # (a greedy set whose last stage named a sensor fault carries no train cost: its
     # swaps are then fitted without the early stop)
     if settings.swap_kinds < 1 or chosen.structure is None or chosen.theta is None:
@@ -117,7 +120,9 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
     for k, m in enumerate(chosen.members):
         if m.category != "structure" or k >= len(coeffs) or not coeffs[k]:
             continue
-        kinds = _kinds(m.effect.kind, settings)
+        if moves_only and k not in moves_only:
+            continue
+        kinds = [] if moves_only else _kinds(m.effect.kind, settings)
         if nested_only:  # the law nested in m's only (``nested``), at m's place
             kinds = [e for e in kinds if e is nested_effect(m.effect.kind)]
         targets = [(eff, m.loc) for eff in kinds]
@@ -131,8 +136,9 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
         if not targets:
             continue
         motion: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, Any]] = {}
-        for loc in dict.fromkeys(t[1].between for t in targets):
-            where = next(t[1] for t in targets if t[1].between == loc)
+        spots = [m.loc, *(t[1] for t in targets)]  # m's own place: its amplitudes
+        for loc in dict.fromkeys(t.between for t in spots):
+            where = next(t for t in spots if t.between == loc)
             try:  # the set's motion at each place
                 d, v = place_motion(chosen.structure, chosen.theta, where, recs, proc)
                 motion[loc] = (d, v, motion_points(d, v))
@@ -329,9 +335,13 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
     rule["swaps"] = tried
     contrib: dict[int, list[float]] = {}
     records = [*train, *val]
-    chosen_all: list[float] = []  # the chosen set on all records, simulated once
+    def accept_against(ref: SetFit) -> Callable[[SetFit], bool]:
+        ref_all: list[float] = []  # the reference set on all records, simulated once
+        return lambda s: accept(s, ref, ref_all)
 
-    def accept(s: SetFit) -> bool:  # as the set was judged: consistent, each one shows
+    def accept(s: SetFit, ref: SetFit, ref_all: list[float]) -> bool:
+        """As the set was judged: consistent, each one shows; a member at a place none
+        of ``ref``'s has must fit all records better than ``ref``."""
         contrib[id(s)] = contributions(s, val, proc)
         low = not all(shown(s, contrib[id(s)], val, proc, noise, settings)[0])
         consistent = _consistent(s, settings.record_tolerance)
@@ -345,18 +355,24 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
                               + f" against {settings.contribution_noise:g} x the floor "
                               f"{noise:.3g}") + ")")
             return False
-        if _moved(s, chosen):  # a member at another place must fit all records better
-            if not chosen_all:
-                chosen_all.append(all_records(chosen, records, proc))
-            mine, theirs = all_records(s, records, proc), chosen_all[0]
+        if _moved(s, ref):  # a member at another place must fit all records better
+            if not ref_all:
+                ref_all.append(all_records(ref, records, proc))
+            mine, theirs = all_records(s, records, proc), ref_all[0]
             entry.update({"all_records": mine, "chosen_all_records": theirs})
             if not mine < theirs:
                 _say(progress, f"swap {s.label()}: refused (all records {mine:.4g} against "
-                               f"{chosen.label()}'s {theirs:.4g})")
+                               f"{ref.label()}'s {theirs:.4g})")
                 return False
         return True
 
-    win, rivals = swap_rivals(chosen, swaps, noise, settings, accept)
+    win, rivals = swap_rivals(chosen, swaps, noise, settings, accept_against(chosen))
+    ks = swapped_members(chosen, win) if win is not None else []
+    moves = member_swaps(win, structure, train, val, proc, gap_before, before_blocks,
+                         settings, known, progress, moves_only=ks) if ks else []
+    if win is not None and moves:  # a law that won its swap, moved too (``swap_moves``)
+        best, place = swap_rivals(win, moves, noise, settings, accept_against(win))
+        win, rivals = merge_moved(win, best, moves, rivals, place, ks, tried, rule, progress)
     top = win if win is not None else chosen
     options = [s for _, s in swaps] + [chosen]
     if win is not None and any(nested_effect(m.effect.kind) for m in win.members):
@@ -365,7 +381,8 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
         again = member_swaps(win, structure, train, val, proc, gap_before, before_blocks,
                              settings, known, progress, nested_only=True)
         options += [s for _, s in again]
-    simpler = nested_swap(top, options, val, proc, settings, accept, rule, progress)
+    simpler = nested_swap(top, options, val, proc, settings, accept_against(chosen), rule,
+                         progress)
     if simpler is not None:  # the richer law unproven: the nested one named, it a rival
         k, win = simpler
         while len(rivals) <= k:
@@ -377,7 +394,8 @@ def swap_members(chosen: SetFit, without: Sequence[float], structure: Structure,
         _say(progress, f"swap: {win.label()} closes {win.closure:.3f} against "
                        f"{chosen.label()}'s {chosen.closure:.3f}")
         rule["swapped"] = {"from": chosen.label(), "to": win.label()}
-        for m, x, w in zip(win.members, contrib[id(win)], without):
+        for m, x, w in zip(win.members, contrib.get(id(win)) or contributions(win, val, proc),
+                           without):
             m.contribution = float(x)
             m.closure_added = float((w - win.gap_after) / gap_before) \
                 if gap_before > 0 else math.nan
