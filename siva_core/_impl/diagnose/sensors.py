@@ -133,14 +133,17 @@ def fit_sensor(c: Candidate, structure: Structure, theta_nom: np.ndarray,
     parameters can put its best value near 1 (measured: force gain 1.15, scan best 0.995);
     after one real re-tune the cost is no longer distorted by that absorption.
 
-    ``limit``: the stage's early stop against its leader (``early_stop.stop_limit``), as
-    a structural fit's: a fault whose corrected train cost after the first re-tune is
-    still above it is cut short there (``c.stopped``), its grid, parabola and last re-fit
-    not run.  Why it is safe: they move the value within the scan's neighbourhood and
-    re-tune a model already re-tuned once, gaining a small factor, not the ``stop_ratio``
-    it would need to rival the leader; a stopped fit the validation records do not show
-    losing is fitted in full (``stage._stage``'s rescue).  (Speed, issue 16 must-show 3:
-    three sensor fits of 24.6 profiled CPU s in ``lono:two:0``, where no sensor is faulty.)"""
+    ``limit``: a fault whose corrected train cost after the first re-tune is still above
+    it is cut short there (``c.stopped``), its grid, parabola and last re-fit not run.
+    The stage passes the lower of its early stop against the leader
+    (``early_stop.stop_limit``, as a structural fit's) and (1 - ``sensor_gain``) x its
+    starting cost, the evidence ``sensor_fits`` chose the fault on (its linearised scan
+    lowered the cost that much): when the real re-tune at the scan's value no longer
+    does, that evidence is gone.  The grid and parabola move the value within the scan's
+    neighbourhood of a model already re-tuned once; a stopped fit the validation records
+    do not show losing is fitted in full (``stage._stage``'s rescue).  (Speed, issue 16
+    must-show 3: three sensor fits, 24.6 profiled CPU s, in ``lono:two:0``, where no
+    sensor is faulty: train 0.108-0.112 after the re-tune from 0.114.)"""
     from ..refine import refine
 
     t0 = time.perf_counter()
