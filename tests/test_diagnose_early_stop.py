@@ -11,7 +11,9 @@ import pytest
 from siva_core import (EFFECTS, DiagnoseSettings, Processing, Structure, refine,
                        synthetic_impacts, with_effect)
 from siva_core._impl.diagnose import Candidate, Location
-from siva_core._impl.diagnose.early_stop import cannot_win, gain_limit
+from siva_core._impl.diagnose.early_stop import cannot_win, gain_limit, stop_limit
+from siva_core._impl.diagnose.sensor_faults import CHANNEL_DELAY
+from siva_core._impl.diagnose.sensors import fit_sensor, scan_sensor
 from siva_core._impl.diagnose.set_fit import SetFit, refit_stopped, set_stop
 from siva_core._impl.diagnose.fitting import fit_candidate
 from siva_core._impl.effects import Amplitudes
@@ -193,3 +195,27 @@ def test_fits_stopped_against_one_leader_share_its_head_costs():
                       theta=winner.theta * 1.01)
     assert head_costs(moved, train, proc) is not shared
     assert head_costs(winner, train, Processing.auto(train, sdof.dofs)) is not shared
+
+
+def test_a_sensor_fit_far_above_the_leader_stops_after_its_first_re_tune():
+    """A sensor fault's fit is stopped like a structural one (``stop_limit``): above the
+    limit after its first re-tune it is cut short there; without a limit it runs in full."""
+    settings = DiagnoseSettings()
+    assert stop_limit(math.inf, settings) == math.inf
+    assert stop_limit(0.01, settings) == settings.stop_ratio * 0.01
+    assert stop_limit(4.5e-4, settings, 6.4e-4) == gain_limit(6.4e-4, 4.5e-4,
+                                                              settings.stop_ratio)
+    sdof, train, proc = _case()
+    th = sdof.vector(NOMINAL)
+    first = DiagnoseSettings(fit_nfev=20)
+
+    def fit(limit: float) -> Candidate:
+        c = Candidate(CHANNEL_DELAY, Location(0, -1, ("acc_x", "sensor")), {})
+        scan_sensor(c, sdof, th, train, proc)
+        fit_sensor(c, sdof, th, train, proc, first, limit)
+        return c
+
+    full, cut = fit(math.inf), fit(1e-12)
+    assert full.fitted and not full.stopped
+    assert cut.fitted and cut.stopped and "stopped early" in cut.note
+    assert cut.train_cost > 1e-12 and CHANNEL_DELAY.magnitude in cut.coefficients

@@ -91,11 +91,9 @@ def cannot_win(leader_cost: float, settings: DiagnoseSettings,
     ``base_cost``: the train cost the fits start from, when it is the model of an earlier
     stage (``gain_limit``): on the full records a fit is also cut short once it has
     removed less than 1/``stop_ratio`` of what the leader removed from it."""
-    if not (np.isfinite(leader_cost) and leader_cost > 0
-            and np.isfinite(settings.stop_ratio)):
+    limit = stop_limit(leader_cost, settings, base_cost)
+    if not np.isfinite(limit):
         return None
-    limit = min(settings.stop_ratio * leader_cost,
-                gain_limit(base_cost, leader_cost, settings.stop_ratio))
     heads = (head_costs(leader, train, proc) if leader is not None and train is not None
              and proc is not None and leader.category == "structure"
              and leader.structure is not None and leader.theta is not None else None)
@@ -110,6 +108,19 @@ def cannot_win(leader_cost: float, settings: DiagnoseSettings,
         ref = heads.cost(prob)
         return bool(np.isfinite(ref) and ref > 0 and cost > settings.stop_ratio * ref)
     return stop
+
+
+def stop_limit(leader_cost: float, settings: DiagnoseSettings,
+               base_cost: float = math.nan) -> float:
+    """The train cost on the full records above which a fit after a leader of train cost
+    ``leader_cost`` is cut short (``cannot_win``'s last-stage test): ``stop_ratio`` x the
+    leader's, or less than 1/``stop_ratio`` of the leader's gain from ``base_cost``; inf
+    when there is no leader (or the rule is off)."""
+    if not (np.isfinite(leader_cost) and leader_cost > 0
+            and np.isfinite(settings.stop_ratio)):
+        return math.inf
+    return min(settings.stop_ratio * leader_cost,
+               gain_limit(base_cost, leader_cost, settings.stop_ratio))
 
 
 def gain_limit(base_cost: float, leader_cost: float, ratio: float) -> float:

@@ -210,8 +210,12 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         if lead is not None:
             extra += [(lead, c) for c in [*mates, *faults]]
             mates = [lead, *mates]
+        # settled: not the members' pairs either (the first member with each candidate was
+        # fitted jointly by stage 2, which chose the second; a pair without the first must
+        # beat a set at the noise floor); ``extra`` still (lonomax2: 21 s of lono:two:0)
+        combos = [] if settled else list(combinations(members, 2))
         pairs = []
-        for a, b in [*combinations(members, 2), *extra]:
+        for a, b in [*combos, *extra]:
             if frozenset((a.key, b.key)) not in done:
                 done.add(frozenset((a.key, b.key)))
                 pairs.append((a, b))

@@ -15,7 +15,7 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .budget import clock_of
-from .early_stop import cannot_win
+from .early_stop import cannot_win, stop_limit
 from .fitting import continue_fit, fit_candidate, scan_candidate
 from .nominal import DISSIPATIVE, NominalFit
 from .outputs import Progress, _say
@@ -123,7 +123,12 @@ def _stage(structure: Structure, fit: NominalFit, train: Sequence[Recording],
         lc, ld = against if against is not None else (leader_cost(), leader())
         try:
             if c.category == "sensor":
-                fit_sensor(c, structure, theta, train, proc, first)
+                # cut short after its first re-tune above the leader's limit, or when
+                # the re-tune no longer lowers the stage's cost by the ``sensor_gain``
+                # its scan was chosen on (``sensor_fits``): the scan's evidence is gone
+                fit_sensor(c, structure, theta, train, proc, first, min(
+                    stop_limit(lc, settings, base),
+                    (1.0 - settings.sensor_gain) * fit.train_cost) if stop else math.inf)
             else:
                 c.amplitudes = nom.amplitudes[c.loc.between]
                 fit_candidate(c, structure, theta, train, proc, c.amplitudes, first,
