@@ -1,7 +1,7 @@
 """The held-out test of a set against a smaller one (issue 16, branch second): the gain
 over its noise error on the validation records is large for a true second effect, even
 one that removes about the noise floor, and small for one fitted to nothing; and
-``sets.better`` takes a gain below the noise-floor margin only when that statistic
+``set_rules.better`` takes a gain below the noise-floor margin only when that statistic
 shows it."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from siva_core import EFFECTS
 from siva_core._impl.diagnose import Candidate, DiagnoseSettings, augmented
 from siva_core._impl.diagnose.scoring import judge
 from siva_core._impl.diagnose.set_test import BlockTest, gain_z, residual, without_fits
-from siva_core._impl.diagnose.sets import better
+from siva_core._impl.diagnose.set_rules import better
 from siva_core._impl.diagnose.where import spectral_noise_floor
 from test_diagnose_sets import FC, G, K3, NOMINAL, XY, _single, two_dof_records
 

@@ -15,7 +15,8 @@ from siva_core._impl.diagnose import (Candidate, DiagnoseSettings, Location, aug
                                       synthetic_impacts, with_effect)
 from siva_core._impl.diagnose.scoring import judge, validation_gap
 from siva_core._impl.diagnose.pair_fit import fit_pair
-from siva_core._impl.diagnose.sets import better, contributions
+from siva_core._impl.diagnose.set_members import contributions
+from siva_core._impl.diagnose.set_rules import better
 from siva_core._impl.diagnose.where import spectral_noise_floor
 from siva_core._impl.diagnose.verdict import look_alike
 

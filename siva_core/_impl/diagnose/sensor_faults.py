@@ -76,6 +76,13 @@ FORCE_GAIN = SensorFault(
 SENSOR_FAULTS = {f.name: f for f in (ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN)}
 
 
+def response_channel(channels: "Sequence[str] | dict", dof: str) -> str | None:
+    """The response channel of ``dof`` a sensor fault sits on: the first measured of
+    acceleration, velocity, displacement (one per DOF: the others are derived from it)."""
+    return next((f"{q}_{dof}" for q in ("acc", "vel", "disp") if f"{q}_{dof}" in channels),
+                None)
+
+
 def corrected(records: Sequence[Recording], fault: SensorFault, channel: str,
               value: float) -> list[Recording]:
     """The records as a sensor without the fault would have given them."""

@@ -31,7 +31,7 @@ from .outputs import Progress, _say
 from .pulse_reading import explained_by_reading
 from .results import Candidate, Location
 from ..structure import Structure
-from .sensor_faults import ACC_GAIN, FORCE_GAIN, corrected_cost
+from .sensor_faults import ACC_GAIN, FORCE_GAIN, corrected_cost, response_channel
 from .set_fit import SetFit, finish_set, mark_stopped
 from .settings import FAST, DiagnoseSettings
 
@@ -44,13 +44,6 @@ def driven_dofs(records: Sequence[Recording], dofs: Sequence[str]) -> list[str]:
         if any(ch in r.channels and np.any(np.asarray(r.channels[ch]) != 0) for r in records):
             out.append(dof)
     return out
-
-
-def response_channel(records: Sequence[Recording], dof: str) -> str | None:
-    """The response channel of ``dof`` a sensor fault sits on (``sensors.sensor_candidates``'
-    order: acceleration, velocity, displacement)."""
-    chans = records[0].channels if records else {}
-    return next((f"{q}_{dof}" for q in ("acc", "vel", "disp") if f"{q}_{dof}" in chans), None)
 
 
 def twin(m: Candidate, records: Sequence[Recording], dofs: Sequence[str]
@@ -67,16 +60,17 @@ def twin(m: Candidate, records: Sequence[Recording], dofs: Sequence[str]
         return None
     ch = m.loc.between[0]
     driven = driven_dofs(records, dofs)
+    chans = records[0].channels if records else {}
     if m.effect.kind == FORCE_GAIN.kind:
         dof = ch[len("force_"):]
-        acc = response_channel(records, dof) if dof in driven else None
+        acc = response_channel(chans, dof) if dof in driven else None
         if acc is None:
             return None
         return Candidate(ACC_GAIN, Location(list(dofs).index(dof), -1, (acc, "sensor")), {},
                          coefficients={ACC_GAIN.magnitude: 1.0 / g}, fitted=True,
                          note=f"swapped from {m.label()} in the set")
     if m.effect.kind == ACC_GAIN.kind:
-        dof = next((d for d in driven if response_channel(records, d) == ch), None)
+        dof = next((d for d in driven if response_channel(chans, d) == ch), None)
         if dof is None:
             return None
         return Candidate(FORCE_GAIN, Location(list(dofs).index(dof), -1,

@@ -20,7 +20,7 @@ from ..recording import Recording
 from ..structure import Structure
 from .results import Candidate, Location
 from .sensor_faults import (ACC_GAIN, CHANNEL_DELAY, FORCE_GAIN, corrected, corrected_cost,
-                            value_parabola)
+                            response_channel, value_parabola)
 from .settings import FAST, DiagnoseSettings
 
 
@@ -31,12 +31,10 @@ def sensor_candidates(structure: Structure, records: Sequence[Recording]) -> lis
     chans = records[0].channels
     out = []
     for i, dof in enumerate(structure.dofs):
-        for q in ("acc", "vel", "disp"):
-            ch = f"{q}_{dof}"
-            if ch in chans:
-                out.append(Candidate(ACC_GAIN, Location(i, -1, (ch, "sensor")), {}))
-                out.append(Candidate(CHANNEL_DELAY, Location(i, -1, (ch, "sensor")), {}))
-                break
+        ch = response_channel(chans, dof)
+        if ch is not None:
+            out.append(Candidate(ACC_GAIN, Location(i, -1, (ch, "sensor")), {}))
+            out.append(Candidate(CHANNEL_DELAY, Location(i, -1, (ch, "sensor")), {}))
         if f"force_{dof}" in chans and np.any(np.asarray(chans[f"force_{dof}"]) != 0):
             out.append(Candidate(FORCE_GAIN, Location(i, -1, (f"force_{dof}", "sensor")), {}))
     return out

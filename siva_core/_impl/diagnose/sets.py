@@ -16,7 +16,7 @@ spurious element fitted to a residue (the issue's null: k = 16 N/m) moves them l
 from __future__ import annotations
 
 import math
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -33,59 +33,13 @@ from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
 from .pruned import without_members
+from .set_rules import better, pair_members, relevant
 from .set_members import contributions, member_coefficients, shown, with_embedded
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
 from .without_member import KnownFits
-
-
-def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: int = 3
-                 ) -> list[Candidate]:
-    """The singles worth pairing: the ``n`` best structural fits by validation closure
-    (distinct places first: two laws at one place are look-alikes, told apart by the kind
-    check, not a pair) that close at least a little, and the best sensor fault."""
-    fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure) and c.closure > 0.05
-              and not c.reading]
-    struct = [c for c in fitted if c.category == "structure"]
-    out: list[Candidate] = []
-    for c in struct:
-        if all(c.loc.between != o.loc.between for o in out):
-            out.append(c)
-        if len(out) >= n:
-            break
-    sens = [c for c in fitted if c.category == "sensor"]
-    return out + sens[:1]
-
-
-def better(big: Candidate, small_gap: float, noise: float | None,
-           settings: DiagnoseSettings, test: Callable[[], float] | None = None) -> bool:
-    """A set with one more effect beats one whose gap is ``small_gap`` when the added
-    effect removes at least ``step_min`` of it and more than ``noise_factor`` x the noise
-    floor -- or more than the floor itself when the set brings the gap down to the noise
-    level (within ``kind_check_noise`` x the floor: where the true model would be).  With
-    the whole margin a second effect whose smaller set already sits near the noise could
-    never be added (issue 16, seed 13006: a cubic damper left 0.0104 = 3.1 x the floor
-    0.0034, the 16 % accelerometer gain with it 0.0053 = 1.6 x; the gain removed 0.0050,
-    below 2 x the floor).
-
-    A gain below those margins still counts when the held-out records show it: ``test``
-    gives the gain over its noise error on the validation records (``set_test``), which
-    must reach ``test_z``.  The floor margin compares the gain with the *whole* noise
-    energy, which both sets share and which cancels in their difference; the test
-    measures what does not cancel, on the records themselves."""
-    if not np.isfinite(big.gap_after):
-        return False
-    gain = small_gap - big.gap_after
-    if gain < settings.step_min * small_gap:
-        return False
-    if noise is None:
-        return True
-    at_noise = big.gap_after <= settings.kind_check_noise * noise
-    if gain > (1.0 if at_noise else settings.noise_factor) * noise:
-        return True
-    return bool(test is not None and test() >= settings.test_z)
 
 
 def _greedy_set(verdicts: Sequence[Candidate], val: Sequence[Recording], proc: Processing,
@@ -109,17 +63,6 @@ def _greedy_set(verdicts: Sequence[Candidate], val: Sequence[Recording], proc: P
                    sensor=sensor)
     judge(g, val, proc, gap_before, before_blocks, progress)
     return g
-
-
-def _relevant(gap_before: float, closure: float, noise: float | None,
-              settings: DiagnoseSettings) -> bool:
-    """verdict.decide's relevance check (a), for a set's combined closure."""
-    above = noise is None or gap_before > settings.noise_factor * noise
-    visible = (gap_before > settings.gap_min or closure >= settings.faint_closure
-               or (noise is not None and noise > 0
-                   and gap_before >= settings.faint_noise * noise
-                   and closure >= settings.closure_min))
-    return bool(above and visible)
 
 
 def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
@@ -304,7 +247,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         judged = [(w, lambda f=f, s=s: tester.z(f, s)) for w, f, r
                   in zip(without, wo, reading) if not (r and nuisance is not None)]
         vs_single = (lambda s=s: tester.z(verdict, s)) if verdict is not None else None
-        checks = {"relevant": _relevant(ref, 1.0 - s.gap_after / ref, noise, settings),
+        checks = {"relevant": relevant(ref, 1.0 - s.gap_after / ref, noise, settings),
                   "not_pulse_reading": not shadowed and (not any(reading)
                                                           or nuisance is not None),
                   "closure": bool(1.0 - s.gap_after / ref >= need or closes_above_noise(
@@ -410,3 +353,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         return verdict, [verdict], rule
     return None, [], rule
 
+
+
+def _gap(s: Candidate) -> float:
+    return s.gap_after if np.isfinite(s.gap_after) else math.inf

@@ -56,7 +56,7 @@ class DiagnoseSettings:
         2-3 x the floor is only 0.4-0.6 of the whole gap.
     pairs: when no single effect explains the gap to the noise, the leading singles are
         paired and each pair re-fitted jointly (``pair_fit.fit_pair``); sets are compared by
-        their validation gap (``sets.better``): more than one cause as the normal case.
+        their validation gap (``set_rules.better``): more than one cause as the normal case.
     pair_members: how many structural singles (distinct places) are paired, plus the
         best sensor fault.
     pair_partners: the leading member is also paired with the best fit (by train cost)
@@ -140,7 +140,7 @@ class DiagnoseSettings:
         noise's share of their gain (the cross term of the larger set's residual with the
         change of the outputs) is summed over this many contiguous time blocks of each
         validation record, whose spread gives its standard error ...
-    test_z: ... and a gain below ``sets.better``'s noise-floor margins still counts when
+    test_z: ... and a gain below ``set_rules.better``'s noise-floor margins still counts when
         it is at least this many standard errors (``set_test.gain_z``; 3: one-sided
         0.1 % for a normal cross term).  Measured: a faint coulomb removing 0.53 x the
         floor on the 2-DOF test records scores 24, a coulomb or cubic spring added where

@@ -52,7 +52,7 @@ def tentative_lead(ranking: Sequence[Candidate], noise: float | None,
     """The first effect kept tentatively for the next stage: the best by validation gap,
     or -- among the fitted structural singles with no more coefficients whose validation
     gap is within ``noise_factor`` x the noise floor of its (the held-out records cannot
-    rank them: ``sets.better`` counts a gain only above that margin) -- the one with the
+    rank them: ``set_rules.better`` counts a gain only above that margin) -- the one with the
     lowest train cost.  With a second
     effect missing, a single's validation gap mostly measures how the missing effect
     extrapolates to the validation amplitudes, while the train cost, on the same records
