@@ -65,3 +65,27 @@ def test_diagnosis_of_unknown_system_is_404(client):
     r = client.get("/v1/systems/nope-diag/diagnosis")
     assert r.status_code == 404 and "nope-diag" in r.json()["detail"]
 
+
+
+def test_a_failed_run_is_answered_once_then_retried(monkeypatch):
+    """A polling client sees ``failed`` with its error (it used to be restarted on every
+    request, so the client saw a run at 0 % forever)."""
+    import importlib
+    from types import SimpleNamespace
+
+    route = importlib.import_module("service.api.routes.diagnosis")  # the module, not its router
+
+    metas = [SimpleNamespace(id="r1", role="train"), SimpleNamespace(id="r2", role="validation")]
+    store = SimpleNamespace(recordings=lambda name: metas, spec=lambda name: {"name": name})
+    svc = SimpleNamespace(store=store)
+    jobs = route._Jobs()
+    request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(diagnosis_jobs=jobs)))
+    monkeypatch.setattr(route, "require_write_rights", lambda *a, **k: None)
+    monkeypatch.setattr(route, "_run_system", lambda *a, **k: None)  # no thread work
+    key = route._data_key(store.spec("s"), ["r1"], ["r2"], True)
+    failed = route.DiagnosisJob(key, ["r1"], ["r2"], True, state="failed", error="boom")
+    jobs.by_system["s"] = failed
+    first = route._current(request, svc, "s", True, start=True)
+    assert first is failed and first.status("s")["error"] == "boom"
+    second = route._current(request, svc, "s", True, start=True)
+    assert second is not failed and second.state == "running" and second.key == key

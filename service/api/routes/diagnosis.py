@@ -59,6 +59,9 @@ class DiagnosisJob:
     result: dict[str, Any] | None = None
     html: str | None = None
     error: str | None = None
+    #: a failed run was answered once: the next request retries it (before, every request
+    #: retried, so a polling client never saw the failure, only a run restarting forever)
+    failure_served: bool = False
     cancel: threading.Event = field(default_factory=threading.Event, repr=False)
 
     def status(self, name: str) -> dict[str, Any]:
@@ -174,6 +177,10 @@ def _current(request: Request, svc: SivaService, name: str, quick: bool,
     with jobs.lock:
         job = jobs.by_system.get(name)
         if job is not None and job.key == key and job.state not in ("failed", "cancelled"):
+            return job
+        if job is not None and job.key == key and job.state == "failed" \
+                and not job.failure_served:
+            job.failure_served = True
             return job
     if not start:
         raise NotFound(f"system {name!r}: no diagnosis of the current records yet "
