@@ -5,25 +5,19 @@ and the joining sensor faults.  A gap near the noise, a single closing ``step_mi
 lead of more coefficients gives nothing."""
 from __future__ import annotations
 
-import numpy as np
-
-from siva_core import EFFECTS
 from siva_core._impl.diagnose import Candidate, DiagnoseSettings, Location
 from siva_core._impl.diagnose.no_single import no_single_closes, train_lead, weak_pairs
 from siva_core._impl.diagnose.sensor_faults import CHANNEL_DELAY
+from test_diagnose_tie_pairs import _fit as _single
 
 M1G = Location(0, -1, ("m1", "ground"))
 M2G = Location(1, -1, ("m2", "ground"))
 M12 = Location(0, 1, ("m1", "m2"))
 
 
-def _fit(kind: str, loc: Location, gap_after: float, train_cost: float,
-         gap_before: float = 0.04697) -> Candidate:
-    c = Candidate(EFFECTS[kind], loc, {}, score=0.1)
-    c.fitted, c.train_cost, c.gap_after = True, train_cost, gap_after
-    c.closure = 1.0 - gap_after / gap_before
-    c.structure, c.theta = object(), np.zeros(1)  # type: ignore[assignment]
-    return c
+def _fit(kind: str, loc: Location, gap_after: float, train_cost: float) -> Candidate:
+    """A fitted single of seed 17681's first stage (nominal gap 0.04697)."""
+    return _single(kind, loc, gap_after, train_cost, gap_before=0.04697)
 
 
 def _seed_17681() -> list[Candidate]:

@@ -14,7 +14,6 @@ single rule.
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -23,10 +22,9 @@ from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
 from .budget import clock_of
-from .model_edit import augmented
 from .outputs import Progress, _say
 from .set_fit import SetFit, _refit, finish_set
-from .set_members import member_coefficients
+from .set_members import members_model
 from .settings import DiagnoseSettings
 
 
@@ -50,20 +48,8 @@ def _fit(s: SetFit, keep: Sequence[int], structure: Structure, train: Sequence[R
          val: Sequence[Recording], proc: Processing, gap_before: float,
          before_blocks: np.ndarray, settings: DiagnoseSettings,
          progress: Progress | None) -> SetFit | None:
-    vals = s.structure.as_dict(s.theta)
-    coeffs = member_coefficients(s)
-    base, start = structure, {p: vals[p] for p in structure.free if p in vals}
-    members, last = [], None
-    for k in keep:
-        o = s.members[k]
-        if o.category != "structure":
-            members.append(o)
-            continue
-        base, names = augmented(base, o.effect, o.loc,
-                                {c: max(abs(x), 1e-12) for c, x in coeffs[k].items()})
-        start.update({names[c]: x for c, x in coeffs[k].items() if c in names})
-        members.append(replace(o, names=names))
-        last = members[-1]
+    base, start, members = members_model(structure, s, keep)
+    last = next((o for o in reversed(members) if o.category == "structure"), None)
     if last is None:
         return None
     sensor = s.sensor if any(s.sensor is s.members[k] for k in keep) else None

@@ -4,13 +4,15 @@ check that every named effect shows above the noise)."""
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from dataclasses import replace
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
+from .model_edit import augmented
 from .outputs import _Outputs
 from .results import Candidate
 from .set_fit import SetFit
@@ -32,6 +34,30 @@ def member_coefficients(s: Candidate) -> list[dict[str, float]]:
         else:
             out.append({k: vals[p] for k, p in m.names.items() if p in vals})
     return out
+
+
+def members_model(structure: Structure, s: Candidate, indices: Iterable[int],
+                  skip: int | None = None
+                  ) -> tuple[Structure, dict[str, float], list[Candidate]]:
+    """The nominal ``structure`` holding set ``s``'s structural members ``indices`` (all but
+    ``skip``) at the set's values: the model, its start values (the set's, by name) and the
+    members in order (renamed to the model's names; sensor members and ``skip`` as they
+    are).  Why: a set without a member (``swap``, ``pruned``) is re-fitted from where the
+    set stands, not from the nominal."""
+    vals = s.structure.as_dict(s.theta)
+    coeffs = member_coefficients(s)
+    base, start = structure, {p: vals[p] for p in structure.free if p in vals}
+    members: list[Candidate] = []
+    for j in indices:
+        o = s.members[j]
+        if j == skip or o.category != "structure":
+            members.append(o)
+            continue
+        base, names = augmented(base, o.effect, o.loc,
+                                {c: max(abs(x), 1e-12) for c, x in coeffs[j].items()})
+        start.update({names[c]: x for c, x in coeffs[j].items() if c in names})
+        members.append(replace(o, names=names))
+    return base, start, members
 
 
 def contributions(s: Candidate, val: Sequence[Recording], proc: Processing,

@@ -46,7 +46,7 @@ from .budget import clock_of
 from .outputs import Progress, _say
 from .results import Candidate, Location
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
-from .set_members import contributions, member_coefficients, shown
+from .set_members import contributions, member_coefficients, members_model, shown
 from .sensor_swap import sensor_swaps
 from .set_test import residual
 from .swap_moves import merge_moved, swapped_members
@@ -113,7 +113,6 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
         return []
     from ..refine import output_error
 
-    vals = chosen.structure.as_dict(chosen.theta)
     coeffs = member_coefficients(chosen)
     recs = chosen.correct(train)
     out: list[tuple[int, SetFit]] = []
@@ -151,16 +150,7 @@ def member_swaps(chosen: SetFit, structure: Structure, train: Sequence[Recording
                                          v_rms=pts[0][1])
         # the model without m: the nominal one plus every other structural member, at
         # the set's values (its sensor member, if any, keeps correcting the records)
-        base, start = structure, {p: vals[p] for p in structure.free if p in vals}
-        others: list[Candidate] = []
-        for j, o in enumerate(chosen.members):
-            if j == k or o.category != "structure":
-                others.append(o)
-                continue
-            base, names_o = augmented(base, o.effect, o.loc,
-                                      {c: max(abs(x), 1e-12) for c, x in coeffs[j].items()})
-            start.update({names_o[c]: x for c, x in coeffs[j].items() if c in names_o})
-            others.append(replace(o, names=names_o))
+        base, start, others = members_model(structure, chosen, range(len(chosen.members)), k)
         jobs = []
         for eff, loc in targets:
             if loc.between not in motion:
