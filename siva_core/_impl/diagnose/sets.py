@@ -137,17 +137,17 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         if len(verdicts) == 1 and verdicts[0].category == "structure":
             extra += [(verdicts[0], c) for c in refused]
         extra += list(tied)  # the tied first leads with the later effects (tie_pairs)
+        joining = joiners(ranking, verdicts, scanned)
         # ranked by train cost, unless the greedy stages' set already closes enough
         if no_single_closes(ranking, gap_before, noise, settings) and not any(
                 o.closure >= settings.tentative_closure for o in options):
-            weak = weak_pairs(ranking, joiners(ranking, verdicts, scanned), nominal_cost,
-                              settings)
+            weak = weak_pairs(ranking, joining, nominal_cost, settings)
             rule["no_single_pairs"] = said = [f"{a.label()} + {b.label()}" for a, b in weak]
             _say(progress, "no single closes much: pairs by train cost "
                  + (", ".join(said) or "none (no single lowers the train cost enough)"))
             extra += weak
         lead, mates = partners(ranking, members, settings)
-        faults = [] if settled else joiners(ranking, verdicts, scanned)
+        faults = [] if settled else joining
         if settled:
             lead, mates = None, []
         if lead is not None:
