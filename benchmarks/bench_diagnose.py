@@ -249,7 +249,7 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated: " + ", ".join(CASES))
-    ap.add_argument("--matrix", choices=("full", "reduced", "issue16"),
+    ap.add_argument("--matrix", choices=("full", "reduced", "issue16", "pairs"),
                     help="run the confusion-matrix cases instead of --cases")
     ap.add_argument("--structures", default="lono,chain3",
                     help="structures of --matrix: " + ", ".join(matrix.STRUCTURES))

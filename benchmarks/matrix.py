@@ -157,8 +157,9 @@ def coefficients(rig_name: str, kind: str, place: str, size: str) -> dict[str, f
 @dataclass(frozen=True)
 class MatrixCase:
     """``rig:kind:place:size``, ``rig:null``, ``rig:sensor:fault:channel``,
-    ``rig:two:i`` (the i-th pair of ``Rig.pairs``) or ``rig:mixed:kind:place:size:fault:
-    channel`` (a structural effect and a sensor fault at once, issue 16)."""
+    ``rig:two:i`` (the i-th pair of ``Rig.pairs``), ``rig:pair:kind:place:size:kind:place:
+    size`` (any two structural effects) or ``rig:mixed:kind:place:size:fault:channel`` (a
+    structural effect and a sensor fault at once, issue 16)."""
 
     rig: str
     what: str
@@ -174,6 +175,8 @@ class MatrixCase:
     def _elements(self) -> list[tuple[str, str, str]]:
         if self.what == "two":
             return list(STRUCTURES[self.rig].pairs[int(self.args[0])])
+        if self.what == "pair":
+            return [tuple(self.args[:3]), tuple(self.args[3:6])]  # type: ignore[list-item]
         if self.what in EFFECTS:
             return [(self.what, self.args[0], self.args[1])]
         if self.what == "mixed":
@@ -296,7 +299,47 @@ def issue16_cases(rigs: list[str]) -> list[MatrixCase]:
     return out
 
 
+def pairs_cases(rigs: list[str]) -> list[MatrixCase]:
+    """Two effects at once by a fixed rule (issue 16, rows written before they were run):
+    each kind ``KINDS[i]`` with ``KINDS[(i + 3) % 8]`` (every law once first and once
+    second; dissipative with stiffness mostly), the first at place ``i``, the second half
+    the place list further on (another place), sizes large + large for even ``i`` and
+    large + small for odd ``i``; then each sensor fault beside a structural law (every
+    other kind, its place rotating, large) on a channel rotating over the DOFs.  A place
+    where the model already holds the kind moves to the next place."""
+    out: list[MatrixCase] = []
+    for name in rigs:
+        rig = STRUCTURES[name]
+        st = rig.nominal()
+        ps = places(st)
+
+        def at(kind: str, k: int) -> str:
+            for j in range(len(ps)):
+                p = ps[(k + j) % len(ps)]
+                if not _has(st, kind, p):
+                    return p
+            raise ValueError(f"{kind} is already everywhere in {name}")
+
+        for i, first in enumerate(KINDS):
+            second = KINDS[(i + 3) % len(KINDS)]
+            pa = at(first, i)
+            pb = at(second, ps.index(pa) + max(1, len(ps) // 2))
+            if pb == pa:
+                pb = at(second, ps.index(pa) + 1)
+            size_b = "large" if i % 2 == 0 else "small"
+            out.append(MatrixCase(name, "pair", (first, pa, "large", second, pb, size_b)))
+        faults = [("accelerometer_gain", "acc"), ("channel_delay", "acc"), ("force_gain", "force")]
+        for j, (fault, prefix) in enumerate(faults + faults[:1]):
+            kind = KINDS[(2 * j + 1) % len(KINDS)]
+            dof = rig.force_dof if prefix == "force" else st.dofs[(j + 1) % len(st.dofs)]
+            out.append(MatrixCase(name, "mixed", (kind, at(kind, j + 1), "large", fault,
+                                                  f"{prefix}_{dof}")))
+    return out
+
+
 def case_names(scope: str, rigs: list[str], rotate: int = 0) -> list[str]:
     if scope == "issue16":
         return [c.name for c in issue16_cases(rigs)]
+    if scope == "pairs":
+        return [c.name for c in pairs_cases(rigs)]
     return [c.name for c in cases(scope, rigs, rotate)]

@@ -188,6 +188,13 @@ def test_matrix_sizes_come_from_the_structure():
         assert matrix.coefficients(rig, "cubic_spring", matrix.places(st)[0], "small")["k3"] < 0
     assert "lono:damper:LO-ground:small" not in matrix.case_names("full", ["lono"])
     assert len(matrix.case_names("reduced", ["lono"])) < len(matrix.case_names("full", ["lono"]))
+    for c in matrix.pairs_cases(["lono", "chain3"]):  # two effects each, none the model has
+        expected = c.expected()
+        assert len(expected) == 2 and expected[0] != expected[1]
+        st = c.nominal()
+        for kind, place, _ in c._elements():
+            assert not matrix._has(st, kind, place), c.name
+        assert matrix.parse(c.name) == c
 
 
 def test_a_record_at_the_noise_level_may_wobble_without_refusing_the_verdict():
