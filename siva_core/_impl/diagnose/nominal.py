@@ -10,7 +10,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .nominal_restart import linear_refit, refine_restarts, spread_damping
+from .nominal_restart import linear_refit, refine_restarts, restored_springs, spread_damping
 from .outputs import Progress, _say
 from .settings import FAST, DiagnoseSettings
 
@@ -308,10 +308,14 @@ def _restarted(structure: Structure, train: Sequence[Recording], proc: Processin
         if th is not None and _plausible(structure, th, fs) and not any(  # news only
                 np.allclose(th, t, rtol=1e-3) for t in (fit.theta, *(t for _, t in starts))):
             starts.append((label, th))
-    again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings, progress)
-    if again is None:
-        return fit
-    return NominalFit(again[1], again[2], again[0], fit.ls_theta, fit.ls_chain)
+    for _ in range(2):  # then a spring the fit collapsed, a mode lost (restored_springs)
+        again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings,
+                                progress)
+        if again is not None:
+            fit = NominalFit(again[1], again[2], again[0], fit.ls_theta, fit.ls_chain)
+        lost = restored_springs(structure, fit.theta)
+        starts = [] if lost is None else [(f"{fit.start}, collapsed springs restored", lost)]
+    return fit
 
 
 #: a nominal fit leaving more than this share of its train records' energy has failed
