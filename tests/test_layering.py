@@ -79,7 +79,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_substeps.py": {"siva_core._impl.simulate.substeps": "the fits' "
                                         "real-axis substep bound"},
     "tests/test_diagnose_nominal_restart.py": {"siva_core._impl.diagnose": "the nominal "
-                                               "fit and its restarts"},
+                                               "fit and its restarts",
+                                               "siva_core._impl.siva": "the processing "
+                                               "choice"},
     "tests/test_diagnose_escape.py": {"siva_core._impl.simulate.substeps": "the escape "
                                       "rule of the substep pilot"},
     "tests/test_chain_cache.py": {"siva_core._impl.chain_cache": "clearing the memo"},

@@ -10,7 +10,7 @@ import numpy as np
 from ..processing import Processing
 from ..recording import Recording
 from ..structure import Structure
-from .nominal_restart import linear_refit, refine_restarts, spread_damping
+from .nominal_restart import linear_refit, refine_restarts, restored_springs, spread_damping
 from .outputs import Progress, _say
 from .settings import FAST, DiagnoseSettings
 
@@ -289,9 +289,9 @@ def _restarted(structure: Structure, train: Sequence[Recording], proc: Processin
                fit: NominalFit, th0: np.ndarray, settings: DiagnoseSettings,
                progress: Progress | None) -> NominalFit:
     """A poor nominal fit (train cost above ``nominal_poor``) tried again from other
-    basins (``nominal_restart``): its own point and its start with the damping spread over
-    the elements, and the linear least squares' springs with the nonlinear coefficients at
-    zero; each is refined, and kept only when it lowers the train cost ``RESTART_GAIN`` x."""
+    basins (``nominal_restart``): its point and its start with the damping spread, the
+    linear least squares' springs (nonlinear coefficients at zero), then the best one's
+    collapsed springs restored; each refined, kept if it lowers the cost ``RESTART_GAIN`` x."""
     fs = min(r.fs for r in train)
     cands = [("the fit, damping spread", spread_damping(structure, fit.theta)),
              ("its start, damping spread", spread_damping(structure, th0))]
@@ -308,10 +308,15 @@ def _restarted(structure: Structure, train: Sequence[Recording], proc: Processin
         if th is not None and _plausible(structure, th, fs) and not any(  # news only
                 np.allclose(th, t, rtol=1e-3) for t in (fit.theta, *(t for _, t in starts))):
             starts.append((label, th))
-    again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings, progress)
-    if again is None:
-        return fit
-    return NominalFit(again[1], again[2], again[0], fit.ls_theta, fit.ls_chain)
+    for _ in range(2):  # then a spring the fit collapsed, a mode lost
+        again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings,
+                                progress)
+        fit = fit if again is None else NominalFit(again[1], again[2], again[0],
+                                                   fit.ls_theta, fit.ls_chain)
+        lost = restored_springs(structure, fit.theta)
+        starts = [] if lost is None or not _plausible(structure, lost, fs) else [
+            (f"{fit.start}, collapsed springs restored", lost)]
+    return fit
 
 
 #: a nominal fit leaving more than this share of its train records' energy has failed
