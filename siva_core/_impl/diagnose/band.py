@@ -8,9 +8,10 @@ cannot follow its own train records, and no candidate can close the gap (measure
 issue's random scenarios: 12 of the 18 whose band cut a mode were missed, 4 of the 15
 others).  The band is chosen again to keep every linear mode of the first nominal fit,
 and that fit is used unless it is poor (train cost above ``nominal_poor``) and worse
-than the first; when the first fit cannot follow its train records the widest band is
-tried too and kept when its train cost is lower.  Only for ``processing="auto"``: a
-chain the caller gives is kept as given."""
+than the first; when the first fit cannot follow its train records (train cost above
+``nominal_widest``: it has failed, not merely left what a missing effect leaves) the
+widest band is tried too and kept when its train cost is lower.  Only for
+``processing="auto"``: a chain the caller gives is kept as given."""
 from __future__ import annotations
 
 from typing import Sequence
@@ -58,7 +59,7 @@ def _covers(records: Sequence[Recording], first: NominalFit | None,
     modes = resolvable(_modes(structure, first) if first is not None else [], records)
     if modes and proc.bandpass is not None and cut_modes(modes, proc.bandpass):
         out.append((COVER, (min(modes), min(max(modes), 0.4 * nyq))))
-    if first is None or first.train_cost > settings.nominal_poor:
+    if first is None or first.train_cost > settings.nominal_widest:
         lowest = min(modes) if modes else 0.0
         out.append(("the widest band", (lowest, 0.4 * nyq)))
     return out
@@ -82,8 +83,8 @@ def fit_nominal_in_band(structure: Structure, train: Sequence[Recording],
             raise failure  # type: ignore[misc]
         return proc, best
     for why, cover in _covers(records, best, structure, proc, settings):
-        if why != COVER and best is not None and best.train_cost <= settings.nominal_poor:
-            continue  # the band that keeps the modes already fits
+        if why != COVER and best is not None and best.train_cost <= settings.nominal_widest:
+            continue  # the band that keeps the modes already follows its records
         try:
             wide = Processing.auto(list(records), structure.dofs, cover=cover)
         except Exception as exc:  # noqa: BLE001 - keep the first band
