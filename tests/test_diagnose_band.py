@@ -92,10 +92,11 @@ def test_a_mode_too_slow_for_the_record_has_no_track():
 
 
 def test_the_widest_band_only_for_a_failed_nominal_fit():
-    """Branch nomspeed: a poor nominal fit (above ``nominal_poor``) is what a strong
-    missing effect leaves and is not fitted again in the widest band (never kept there,
-    a second nominal fit with its restarts); a failed one (above ``nominal_widest``) or
-    none is; ``nominal_widest = nominal_poor`` gives the rule before."""
+    """Branch nomspeed: a poor nominal fit (above ``nominal_poor``) that shows a mode per
+    DOF inside the band is what a strong missing effect leaves and is not fitted again in
+    the widest band (never kept there, a second nominal fit with its restarts); a failed
+    one (above ``nominal_widest``), one that lost a mode, or none is;
+    ``nominal_widest = nominal_poor`` gives the rule before."""
     from siva_core._impl.diagnose.band import _covers
     from siva_core._impl.diagnose.nominal import NominalFit
 
@@ -110,3 +111,8 @@ def test_the_widest_band_only_for_a_failed_nominal_fit():
     assert "the widest band" in [w for w, _ in _covers(recs, None, st, proc, settings)]
     old = DiagnoseSettings(nominal_widest=settings.nominal_poor)
     assert "the widest band" in whys(0.3, old)
+    # a poor fit that made a mode overdamped (a band hiding it: fresh-style 25936)
+    lost = st.vector({**TRUTH, "c2": 2000.0})
+    assert len(st.linear_modes(lost)["frequency_hz"]) == 1
+    assert "the widest band" in [w for w, _ in _covers(
+        recs, NominalFit(lost, 0.3, "test"), st, proc, settings)]

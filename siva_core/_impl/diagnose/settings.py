@@ -104,13 +104,14 @@ class DiagnoseSettings:
         (train cost) is poor: it is restarted from other damping basins
         (``nominal._restarted``), and a band that keeps its modes replaces the first only
         when it is no poorer (``band.fit_nominal_in_band``).
-    nominal_widest: a nominal fit leaving more than this share (the level at which
-        ``nominal.FAILED`` calls a fit failed) is fitted again in the widest band: a band
-        that cuts a mode leaves the nominal unable to follow its own records.  A merely
-        poor fit (between ``nominal_poor`` and this) is what a strong missing effect
-        leaves; its widest band was never kept (docs/diagnosis.md, branch nomspeed) and
-        costs a second nominal fit with its restarts.  ``nominal_poor`` gives the rule
-        before that branch.
+    nominal_widest: a poor nominal fit is fitted again in the widest band (a band that
+        cuts a mode leaves the nominal unable to follow its own records) when it leaves
+        more than this share (the level at which ``nominal.FAILED`` calls a fit failed),
+        or lacks a resolvable mode per DOF, or a mode is cut (``band.shows_its_modes``).
+        A poor fit below this that shows every mode inside the band is what a strong
+        missing effect leaves; its widest band was never kept (docs/diagnosis.md, branch
+        nomspeed) and costs a second nominal fit with its restarts.  ``nominal_poor``
+        gives the rule before that branch.
     stop_ratio: early stop (speed): a candidate fit whose train cost on the full records
         is still above this multiple of the best train cost fitted so far in its stage,
         ``stop_after`` iterations into its full-record stage, ends there: it cannot win
