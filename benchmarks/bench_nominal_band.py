@@ -68,7 +68,7 @@ def main() -> int:
     ap.add_argument("--cases", required=True, help="comma-separated matrix rows or seeds")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
-    base = DiagnoseSettings()
+    base = DiagnoseSettings(budget_s=None)  # no time budget: the rules, not the load
     variants = {"before": dataclasses.replace(base, nominal_widest=base.nominal_poor),
                 "after": base}
     rows = []
