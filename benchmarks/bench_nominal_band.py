@@ -1,8 +1,10 @@
 """CPU of `siva diagnose` with the poor nominal's widest-band refit and without, side by side.
 
-Branch nomspeed (issue 16, must-show 3): the nominal fit is fitted again in the widest band
-only when it has failed (train cost above ``DiagnoseSettings.nominal_widest``, 0.5), no
-longer whenever it is poor (above ``nominal_poor``, 0.1).  Each case is diagnosed twice in
+Branch nomspeed (issue 16, must-show 3): a poor nominal fit (train cost above
+``nominal_poor``, 0.1) is fitted again in the widest band only when it does not show that
+its band holds the structure (``band.shows_its_modes``: it failed, above
+``DiagnoseSettings.nominal_widest`` = 0.5, or lacks a mode per DOF, or has one cut), no
+longer whenever it is poor.  Each case is diagnosed twice in
 this one process -- ``before`` (``nominal_widest = nominal_poor``: the rule before the
 branch) and ``after`` (the default) -- in alternating order (the first run of a case can
 pay numba compiles the second loads from the cache), and the row reports both runs' CPU

@@ -91,7 +91,7 @@ def test_a_mode_too_slow_for_the_record_has_no_track():
     assert _mode_track(x, fs, 0.08) is None  # fresh seed 13007 crashed here (IndexError)
 
 
-def test_the_widest_band_only_for_a_failed_nominal_fit():
+def test_the_widest_band_only_when_a_poor_nominal_does_not_show_its_modes():
     """Branch nomspeed: a poor nominal fit (above ``nominal_poor``) that shows a mode per
     DOF inside the band is what a strong missing effect leaves and is not fitted again in
     the widest band (never kept there, a second nominal fit with its restarts); a failed

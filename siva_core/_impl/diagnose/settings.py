@@ -109,8 +109,9 @@ class DiagnoseSettings:
         more than this share (the level at which ``nominal.FAILED`` calls a fit failed),
         or lacks a resolvable mode per DOF, or a mode is cut (``band.shows_its_modes``).
         A poor fit below this that shows every mode inside the band is what a strong
-        missing effect leaves; its widest band was never kept (docs/diagnosis.md, branch
-        nomspeed) and costs a second nominal fit with its restarts.  ``nominal_poor``
+        missing effect leaves; its widest band was kept once in the LO-NO matrix and 100
+        development seeds, by 2.5 % (docs/diagnosis.md, branch nomspeed), and costs a
+        second nominal fit with its restarts.  ``nominal_poor``
         gives the rule before that branch.
     stop_ratio: early stop (speed): a candidate fit whose train cost on the full records
         is still above this multiple of the best train cost fitted so far in its stage,
