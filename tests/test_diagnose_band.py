@@ -89,3 +89,30 @@ def test_a_mode_too_slow_for_the_record_has_no_track():
     x = np.sin(2 * np.pi * 20 * t) * np.exp(-t)
     assert _mode_track(x, fs, 20.0) is not None
     assert _mode_track(x, fs, 0.08) is None  # fresh seed 13007 crashed here (IndexError)
+
+
+def test_the_widest_band_only_when_a_poor_nominal_does_not_show_its_modes():
+    """Branch nomspeed: a poor nominal fit (above ``nominal_poor``) that shows a mode per
+    DOF inside the band is what a strong missing effect leaves and is not fitted again in
+    the widest band (never kept there, a second nominal fit with its restarts); a failed
+    one (above ``nominal_widest``), one that lost a mode, or none is;
+    ``nominal_widest = nominal_poor`` gives the rule before."""
+    from siva_core._impl.diagnose.band import _covers
+    from siva_core._impl.diagnose.nominal import NominalFit
+
+    st, recs = _records()
+    proc = Processing.auto(recs, st.dofs)
+    settings = DiagnoseSettings()
+    th = st.vector(TRUTH)
+    whys = lambda cost, s=settings: [w for w, _ in _covers(  # noqa: E731
+        recs, NominalFit(th, cost, "test"), st, proc, s)]
+    assert "the widest band" not in whys(0.3)
+    assert "the widest band" in whys(0.7)
+    assert "the widest band" in [w for w, _ in _covers(recs, None, st, proc, settings)]
+    old = DiagnoseSettings(nominal_widest=settings.nominal_poor)
+    assert "the widest band" in whys(0.3, old)
+    # a poor fit that made a mode overdamped (a band hiding it: fresh-style 25936)
+    lost = st.vector({**TRUTH, "c2": 2000.0})
+    assert len(st.linear_modes(lost)["frequency_hz"]) == 1
+    assert "the widest band" in [w for w, _ in _covers(
+        recs, NominalFit(lost, 0.3, "test"), st, proc, settings)]

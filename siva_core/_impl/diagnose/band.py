@@ -8,9 +8,11 @@ cannot follow its own train records, and no candidate can close the gap (measure
 issue's random scenarios: 12 of the 18 whose band cut a mode were missed, 4 of the 15
 others).  The band is chosen again to keep every linear mode of the first nominal fit,
 and that fit is used unless it is poor (train cost above ``nominal_poor``) and worse
-than the first; when the first fit cannot follow its train records the widest band is
-tried too and kept when its train cost is lower.  Only for ``processing="auto"``: a
-chain the caller gives is kept as given."""
+than the first; when the first fit cannot follow its train records (poor) and does not
+show the band holds the structure (``shows_its_modes``: it failed, above
+``nominal_widest``, or lacks a mode per DOF, or a mode is cut) the widest band is tried
+too and kept when its train cost is lower.  Only for
+``processing="auto"``: a chain the caller gives is kept as given."""
 from __future__ import annotations
 
 from typing import Sequence
@@ -49,6 +51,25 @@ def _modes(structure: Structure, fit: NominalFit) -> list[float]:
         return []
 
 
+def shows_its_modes(first: NominalFit, modes: Sequence[float], cut: bool,
+                    structure: Structure, settings: DiagnoseSettings) -> bool:
+    """A poor nominal fit that still shows the band holds the structure (no widest band
+    needed): it has not failed (train cost at most ``nominal_widest``) and has one
+    resolvable oscillating mode per DOF, none cut by the band.
+
+    Why: the widest band helps a fit the band keeps from the structure's modes -- a mode
+    beyond the band that the fit made overdamped or lost (fresh-style seed 25936: a 3-DOF
+    chain in a 14-61 Hz band, the fit 0.37 with one mode; in the widest band 0.044 with
+    all three) or a fit that failed outright (17007, 25918).  A fit that places every mode
+    of the model inside the band is poor because an effect is missing (LO-NO two:0: 0.114
+    with both modes inside); the widest band only adds the effect's harmonics and noise,
+    over the LO-NO matrix and 100 development seeds it was kept there once, by 2.5 % on a
+    1-DOF (25990, same verdict; docs, branch nomspeed), while it costs a second nominal
+    fit with its restarts."""
+    return (first.train_cost <= settings.nominal_widest and not cut
+            and len(modes) >= len(structure.dofs))
+
+
 def _covers(records: Sequence[Recording], first: NominalFit | None,
             structure: Structure, proc: Processing, settings: DiagnoseSettings
             ) -> list[tuple[str, tuple[float, float]]]:
@@ -56,9 +77,11 @@ def _covers(records: Sequence[Recording], first: NominalFit | None,
     nyq = min(r.fs for r in records) / 2
     out: list[tuple[str, tuple[float, float]]] = []
     modes = resolvable(_modes(structure, first) if first is not None else [], records)
-    if modes and proc.bandpass is not None and cut_modes(modes, proc.bandpass):
+    cut = bool(modes and proc.bandpass is not None and cut_modes(modes, proc.bandpass))
+    if cut:
         out.append((COVER, (min(modes), min(max(modes), 0.4 * nyq))))
-    if first is None or first.train_cost > settings.nominal_poor:
+    if first is None or first.train_cost > settings.nominal_poor and not shows_its_modes(
+            first, modes, cut, structure, settings):
         lowest = min(modes) if modes else 0.0
         out.append(("the widest band", (lowest, 0.4 * nyq)))
     return out

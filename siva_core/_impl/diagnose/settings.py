@@ -101,8 +101,18 @@ class DiagnoseSettings:
         this share of the gap (measured: a wrong pair built that way closed 0.77, right
         pairs close 0.99+).
     nominal_poor: a nominal fit leaving more than this share of its train records' energy
-        (train cost) is fitted again in the widest band (``band.fit_nominal_in_band``): a
-        band that cuts a mode leaves the nominal unable to follow its own records.
+        (train cost) is poor: it is restarted from other damping basins
+        (``nominal._restarted``), and a band that keeps its modes replaces the first only
+        when it is no poorer (``band.fit_nominal_in_band``).
+    nominal_widest: a poor nominal fit is fitted again in the widest band (a band that
+        cuts a mode leaves the nominal unable to follow its own records) when it leaves
+        more than this share (the level at which ``nominal.FAILED`` calls a fit failed),
+        or lacks a resolvable mode per DOF, or a mode is cut (``band.shows_its_modes``).
+        A poor fit below this that shows every mode inside the band is what a strong
+        missing effect leaves; its widest band was kept once in the LO-NO matrix and 100
+        development seeds, by 2.5 % (docs/diagnosis.md, branch nomspeed), and costs a
+        second nominal fit with its restarts.  ``nominal_poor``
+        gives the rule before that branch.
     stop_ratio: early stop (speed): a candidate fit whose train cost on the full records
         is still above this multiple of the best train cost fitted so far in its stage,
         ``stop_after`` iterations into its full-record stage, ends there: it cannot win
@@ -243,6 +253,7 @@ class DiagnoseSettings:
     stop_ratio: float = 10.0
     stop_after: int = 2
     nominal_poor: float = 0.1
+    nominal_widest: float = 0.5
     max_effects: int = 3
     sensors: bool = True
     effects: Sequence[str] | None = None
