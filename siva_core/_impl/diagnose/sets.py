@@ -271,13 +271,16 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             and better(s, cur_gap, noise, settings, above_floor=adds_pinned))
         tried.append({"set": s.label(), "closure": float(s.closure), "checks": checks,
                       "held_out_z": tester.known(s), "by_held_out_test": by_test})
+        if any(pinned):
+            tried[-1]["pinned_gain"] = [m.label() for m, p in zip(s.members, pinned) if p]
         _say(progress, f"set {s.label()}: closure {s.closure:.3f}, failed "
                        f"{[k for k, ok in checks.items() if not ok] or 'none'} (noise "
                        f"{noise if noise is not None else math.nan:.3g}, without each "
                        + ", ".join(f"{w:.4g}" for w in without) + (
                            f"; held-out z {tester.known(s)}" if tester.known(s) else "")
                        + (" [passes by the held-out test]" if by_test and all(checks.values())
-                          else "") + ")")
+                          else "") + (" [a gain pinned outside the pulse reading]"
+                                      if any(pinned) else "") + ")")
         if all(checks.values()):
             contrib = contributions(s, val, proc, known, wo)
             shows, own = shown(s, contrib, val, proc, noise, settings)
