@@ -239,7 +239,7 @@ def shown_pinned(s: Candidate, shows: list[bool], own: list[str], pinned: Sequen
     scales the response it multiplies, so its change of the outputs is coherent with the
     signal and is measured against the noise's error on it, not against the noise's whole
     energy, which the two fits share (fresh seed 17720: a 4.7 % force gain changes the
-    outputs by 0.8 x the floor, z 7.1).  The reason says so, with the gain's value,
+    outputs by less than 2 x the floor, z 7.1).  The reason says so, with the gain's value,
     interval and the range the reading explains."""
     shows, own = list(shows), list(own)
     for k, (m, p) in enumerate(zip(s.members, pinned)):
