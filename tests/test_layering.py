@@ -24,6 +24,9 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.simulate": "the remembered substep choice (pilot_memo)"},
     "tests/test_diagnose_gain_reading.py": {
         "siva_core._impl.diagnose.pulse_reading": "reading_limit on synthetic hits"},
+    "tests/test_diagnose_forcegain.py": {
+        "siva_core._impl.diagnose.pulse_reading": "a gain pinned outside the reading",
+        "siva_core._impl.diagnose.set_rules": "the step above the floor"},
     "tests/test_diagnose_sensor2.py": {
         "siva_core._impl.diagnose": "the separation statistic, the sensor residue"},
     "tests/test_diagnose_sensorside.py": {

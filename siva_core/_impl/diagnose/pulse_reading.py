@@ -176,6 +176,27 @@ def explained_by_reading(c: Candidate, records: Sequence[Recording],
     return rng[0] <= gain <= rng[1]
 
 
+def outside_reading(c: Candidate, records: Sequence[Recording],
+                    structure: Structure | None = None,
+                    theta: np.ndarray | None = None) -> tuple[float, float] | None:
+    """The reading range (``reading_range``) when ``c`` is a force gain (or a 1-DOF
+    accelerometer gain) whose fitted value *and* its interval lie wholly outside it: the
+    records then pin a gain that no half-sine through the hammer's samples explains, a
+    transducer fault and not the reading's nuisance (issue 16, fresh seed 17720: a force
+    gain 0.911 beside a coulomb, fitted 0.953 with the coulomb, interval 0.952-0.954,
+    against the 0.999-1.06 the 3-sample pulse explains).  None otherwise (no range, or
+    the value or its interval reaching into it)."""
+    rng = reading_range(c, records, structure, theta)
+    gain = c.coefficients.get(c.effect.magnitude) if rng is not None else None
+    if gain is None or not np.isfinite(gain) or gain <= 0:
+        return None
+    lo, hi = (c.intervals or {}).get(c.effect.magnitude, (gain, gain))
+    ends = [x for x in (gain, lo, hi) if np.isfinite(x)]
+    if all(x < rng[0] for x in ends) or all(x > rng[1] for x in ends):
+        return rng
+    return None
+
+
 def shadowed_by_reading(c: Candidate, fitted: Sequence[Candidate]) -> Candidate | None:
     """The force gain, itself within the pulse-reading band, that fits the train records
     at least as well as accelerometer gain ``c`` (None when there is none).

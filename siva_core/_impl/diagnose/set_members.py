@@ -14,8 +14,10 @@ from ..recording import Recording
 from ..structure import Structure
 from .model_edit import augmented
 from .outputs import _Outputs
+from .pulse_reading import outside_reading
 from .results import Candidate
 from .set_fit import SetFit
+from .set_test import BlockTest
 from .settings import DiagnoseSettings
 from .where import channel_noise_floors
 from .without_member import KnownFits
@@ -225,3 +227,33 @@ def fill_closures(members: Sequence[Candidate], singles: Sequence[Candidate]) ->
     for m in members:
         if not np.isfinite(m.closure):
             m.closure = float(alone.get(m.key, m.closure_added))
+
+
+def shown_pinned(s: Candidate, shows: list[bool], own: list[str], pinned: Sequence[bool],
+                 wo: Sequence[Candidate | None], tester: BlockTest,
+                 train: Sequence[Recording], settings: DiagnoseSettings
+                 ) -> tuple[list[bool], list[str]]:
+    """A gain pinned outside the pulse reading (``pulse_reading.outside_reading``) shows
+    above the noise when the set beats the set without it on the held-out records
+    (``set_test``, ``test_z``), not only by ``contribution_noise`` x the floor: a gain
+    scales the response it multiplies, so its change of the outputs is coherent with the
+    signal and is measured against the noise's error on it, not against the noise's whole
+    energy, which the two fits share (fresh seed 17720: a 4.7 % force gain changes the
+    outputs by less than 2 x the floor, z 7.1).  The reason says so, with the gain's value,
+    interval and the range the reading explains."""
+    shows, own = list(shows), list(own)
+    for k, (m, p) in enumerate(zip(s.members, pinned)):
+        if not p or k >= len(shows) or shows[k] or k >= len(wo) or wo[k] is None:
+            continue
+        z = tester.z(wo[k], s)
+        if not z >= settings.test_z:
+            continue
+        shows[k] = True
+        rng = outside_reading(m, train, s.structure, s.theta)
+        g = m.coefficients.get(m.effect.magnitude, math.nan)
+        iv = (m.intervals or {}).get(m.effect.magnitude)
+        own.append(f"{m.label()} {g:.4g}" + (f" ({iv[0]:.4g}-{iv[1]:.4g})" if iv else "")
+                   + f" lies outside the gains the hammer pulse's reading explains "
+                   f"({rng[0]:.3g}-{rng[1]:.3g}) and shows on the held-out records: z "
+                   f"{z:.1f} against {wo[k].label()} (>= {settings.test_z:g})")
+    return shows, own

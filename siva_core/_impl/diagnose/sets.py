@@ -28,13 +28,14 @@ from .no_single import no_single_closes, weak_pairs
 from .outputs import Progress, _say
 from .pair_fit import best_known, fit_pair
 from .parallel import run_each, worker_count
-from .pulse_reading import explained_by_reading, nuisance_reading
+from .pulse_reading import explained_by_reading, nuisance_reading, outside_reading
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
 from .pruned import without_members
 from .set_rules import better, pair_members, relevant
-from .set_members import contributions, member_coefficients, shown, with_embedded
+from .set_members import (contributions, member_coefficients, shown, shown_pinned,
+                          with_embedded)
 from .set_test import BlockTest, without_fits
 from .swap import swap_members
 from .settings import DiagnoseSettings
@@ -232,8 +233,12 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         need = settings.closure_min if verdict is not None else settings.tentative_closure
         # a sensor member re-fitted with the set may land within the pulse-reading band:
         # then it is a nuisance of the records, not a fault (``nuisance_reading``)
-        reading = [m.category == "sensor" and (m.reading or explained_by_reading(
-            m, train, s.structure, s.theta)) for m in s.members]
+        # ... unless the set's own fit pins it outside that band, value and interval
+        # (``outside_reading``): then it is a fault, whatever its single fit said
+        pinned = [m.category == "sensor" and outside_reading(
+            m, train, s.structure, s.theta) is not None for m in s.members]
+        reading = [m.category == "sensor" and not p and (m.reading or explained_by_reading(
+            m, train, s.structure, s.theta)) for m, p in zip(s.members, pinned)]
         # an accelerometer gain its stage found shadowed by the force gain's reading
         # (``pulse_reading.shadowed_by_reading``) refuses the set: not a nuisance either
         shadowed = any(m.key in shadowed_keys for m in s.members)
@@ -244,34 +249,42 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # the members judged as needed: all but a nuisance gain
         # each "without" as a fitted set too: the held-out test of ``better``
         wo = without_fits(s.members, singles, fitted_sets)
-        judged = [(w, lambda f=f, s=s: tester.z(f, s)) for w, f, r
-                  in zip(without, wo, reading) if not (r and nuisance is not None)]
+        # a pinned gain's step is judged on the gap above the floor (``set_rules.better``)
+        judged = [(w, lambda f=f, s=s: tester.z(f, s), p) for w, f, r, p
+                  in zip(without, wo, reading, pinned) if not (r and nuisance is not None)]
         vs_single = (lambda s=s: tester.z(verdict, s)) if verdict is not None else None
+        adds_pinned = verdict is not None and any(m.key == verdict.key for m in s.members) \
+            and all(p for m, p in zip(s.members, pinned) if m.key != verdict.key)
         checks = {"relevant": relevant(ref, 1.0 - s.gap_after / ref, noise, settings),
                   "not_pulse_reading": not shadowed and (not any(reading)
                                                           or nuisance is not None),
                   "closure": bool(1.0 - s.gap_after / ref >= need or closes_above_noise(
                       ref, s.gap_after, noise, need, settings)),
                   "consistent": _consistent(s, settings.record_tolerance),
-                  "every_member_needed": all(better(s, w, noise, settings, t)
-                                             for w, t in judged),
-                  "better_than_single": better(s, cur_gap, noise, settings, vs_single)}
+                  "every_member_needed": all(better(s, w, noise, settings, t, p)
+                                             for w, t, p in judged),
+                  "better_than_single": better(s, cur_gap, noise, settings, vs_single,
+                                               adds_pinned)}
         # the margins alone (the rule before the held-out test): which sets the test let in
         by_test = bool(tester.known(s)) and not (
-            all(better(s, w, noise, settings) for w, _ in judged)
-            and better(s, cur_gap, noise, settings))
+            all(better(s, w, noise, settings, above_floor=p) for w, _, p in judged)
+            and better(s, cur_gap, noise, settings, above_floor=adds_pinned))
         tried.append({"set": s.label(), "closure": float(s.closure), "checks": checks,
                       "held_out_z": tester.known(s), "by_held_out_test": by_test})
+        if any(pinned):
+            tried[-1]["pinned_gain"] = [m.label() for m, p in zip(s.members, pinned) if p]
         _say(progress, f"set {s.label()}: closure {s.closure:.3f}, failed "
                        f"{[k for k, ok in checks.items() if not ok] or 'none'} (noise "
                        f"{noise if noise is not None else math.nan:.3g}, without each "
                        + ", ".join(f"{w:.4g}" for w in without) + (
                            f"; held-out z {tester.known(s)}" if tester.known(s) else "")
                        + (" [passes by the held-out test]" if by_test and all(checks.values())
-                          else "") + ")")
+                          else "") + (" [a gain pinned outside the pulse reading]"
+                                      if any(pinned) else "") + ")")
         if all(checks.values()):
             contrib = contributions(s, val, proc, known, wo)
             shows, own = shown(s, contrib, val, proc, noise, settings)
+            shows, own = shown_pinned(s, shows, own, pinned, wo, tester, train, settings)
             low = [m.label() for m, ok, r in zip(s.members, shows, reading)
                    if not ok and not (r and nuisance is not None)]
             tried[-1]["contributions"] = [float(x) for x in contrib]
