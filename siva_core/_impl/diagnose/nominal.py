@@ -308,15 +308,21 @@ def _restarted(structure: Structure, train: Sequence[Recording], proc: Processin
         if th is not None and _plausible(structure, th, fs) and not any(  # news only
                 np.allclose(th, t, rtol=1e-3) for t in (fit.theta, *(t for _, t in starts))):
             starts.append((label, th))
-    for _ in range(2):  # then a spring the fit collapsed, a mode lost
-        again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings,
-                                progress)
-        fit = fit if again is None else NominalFit(again[1], again[2], again[0],
-                                                   fit.ls_theta, fit.ls_chain)
-        lost = restored_springs(structure, fit.theta)
-        starts = [] if lost is None or not _plausible(structure, lost, fs) else [
-            (f"{fit.start}, collapsed springs restored", lost)]
-    return fit
+    fit = _kept(structure, train, proc, starts, fit, settings, progress)
+    lost = restored_springs(structure, fit.theta)  # then a spring it collapsed, a mode lost
+    if lost is None or not _plausible(structure, lost, fs):
+        return fit
+    return _kept(structure, train, proc, [(f"{fit.start}, collapsed springs restored", lost)],
+                 fit, settings, progress)
+
+
+def _kept(structure: Structure, train: Sequence[Recording], proc: Processing,
+          starts: list[tuple[str, np.ndarray]], fit: NominalFit, settings: DiagnoseSettings,
+          progress: Progress | None) -> NominalFit:
+    """The best of ``starts`` refined when it beats ``fit`` (``refine_restarts``), else ``fit``."""
+    again = refine_restarts(structure, train, proc, starts, fit.train_cost, settings, progress)
+    return fit if again is None else NominalFit(again[1], again[2], again[0], fit.ls_theta,
+                                                fit.ls_chain)
 
 
 #: a nominal fit leaving more than this share of its train records' energy has failed

@@ -169,7 +169,11 @@ def explained_by_reading(c: Candidate, records: Sequence[Recording],
                          theta: np.ndarray | None = None) -> bool:
     """Whether ``c`` is a force gain (or a 1-DOF accelerometer gain) within the range
     the pulse reading explains (``reading_range``)."""
-    rng = reading_range(c, records, structure, theta)
+    return within_range(c, reading_range(c, records, structure, theta))
+
+
+def within_range(c: Candidate, rng: tuple[float, float] | None) -> bool:
+    """Whether ``c``'s fitted gain lies in ``rng`` (a ``reading_range``; False for None)."""
     gain = c.coefficients.get(c.effect.magnitude) if rng is not None else None
     if gain is None or not np.isfinite(gain) or gain <= 0:
         return False
@@ -187,14 +191,18 @@ def outside_reading(c: Candidate, records: Sequence[Recording],
     against the 0.999-1.06 the 3-sample pulse explains).  None otherwise (no range, or
     the value or its interval reaching into it)."""
     rng = reading_range(c, records, structure, theta)
+    return rng if outside_range(c, rng) else None
+
+
+def outside_range(c: Candidate, rng: tuple[float, float] | None) -> bool:
+    """Whether ``c``'s fitted gain *and* its interval lie wholly outside ``rng`` (a
+    ``reading_range``; False for None)."""
     gain = c.coefficients.get(c.effect.magnitude) if rng is not None else None
     if gain is None or not np.isfinite(gain) or gain <= 0:
-        return None
+        return False
     lo, hi = (c.intervals or {}).get(c.effect.magnitude, (gain, gain))
     ends = [x for x in (gain, lo, hi) if np.isfinite(x)]
-    if all(x < rng[0] for x in ends) or all(x > rng[1] for x in ends):
-        return rng
-    return None
+    return all(x < rng[0] for x in ends) or all(x > rng[1] for x in ends)
 
 
 def shadowed_by_reading(c: Candidate, fitted: Sequence[Candidate]) -> Candidate | None:

@@ -14,7 +14,6 @@ from ..recording import Recording
 from ..structure import Structure
 from .model_edit import augmented
 from .outputs import _Outputs
-from .pulse_reading import outside_reading
 from .results import Candidate
 from .set_fit import SetFit
 from .set_test import BlockTest
@@ -229,11 +228,12 @@ def fill_closures(members: Sequence[Candidate], singles: Sequence[Candidate]) ->
             m.closure = float(alone.get(m.key, m.closure_added))
 
 
-def shown_pinned(s: Candidate, shows: list[bool], own: list[str], pinned: Sequence[bool],
-                 wo: Sequence[Candidate | None], tester: BlockTest,
-                 train: Sequence[Recording], settings: DiagnoseSettings
+def shown_pinned(s: Candidate, shows: list[bool], own: list[str],
+                 pinned: Sequence[tuple[float, float] | None],
+                 wo: Sequence[Candidate | None], tester: BlockTest, settings: DiagnoseSettings
                  ) -> tuple[list[bool], list[str]]:
-    """A gain pinned outside the pulse reading (``pulse_reading.outside_reading``) shows
+    """A gain pinned outside the pulse reading (``pinned[k]``: the range the reading
+    explains, ``pulse_reading.outside_range``; None for the other members) shows
     above the noise when the set beats the set without it on the held-out records
     (``set_test``, ``test_z``), not only by ``contribution_noise`` x the floor: a gain
     scales the response it multiplies, so its change of the outputs is coherent with the
@@ -242,14 +242,13 @@ def shown_pinned(s: Candidate, shows: list[bool], own: list[str], pinned: Sequen
     outputs by less than 2 x the floor, z 7.1).  The reason says so, with the gain's value,
     interval and the range the reading explains."""
     shows, own = list(shows), list(own)
-    for k, (m, p) in enumerate(zip(s.members, pinned)):
-        if not p or k >= len(shows) or shows[k] or k >= len(wo) or wo[k] is None:
+    for k, (m, rng) in enumerate(zip(s.members, pinned)):
+        if rng is None or k >= len(shows) or shows[k] or k >= len(wo) or wo[k] is None:
             continue
         z = tester.z(wo[k], s)
         if not z >= settings.test_z:
             continue
         shows[k] = True
-        rng = outside_reading(m, train, s.structure, s.theta)
         g = m.coefficients.get(m.effect.magnitude, math.nan)
         iv = (m.intervals or {}).get(m.effect.magnitude)
         own.append(f"{m.label()} {g:.4g}" + (f" ({iv[0]:.4g}-{iv[1]:.4g})" if iv else "")

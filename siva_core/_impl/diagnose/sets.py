@@ -28,7 +28,8 @@ from .no_single import no_single_closes, weak_pairs
 from .outputs import Progress, _say
 from .pair_fit import best_known, fit_pair
 from .parallel import run_each, worker_count
-from .pulse_reading import explained_by_reading, nuisance_reading, outside_reading
+from .pulse_reading import (nuisance_reading, outside_range, reading_range,
+                            within_range)
 from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
@@ -235,10 +236,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # then it is a nuisance of the records, not a fault (``nuisance_reading``)
         # ... unless the set's own fit pins it outside that band, value and interval
         # (``outside_reading``): then it is a fault, whatever its single fit said
-        pinned = [m.category == "sensor" and outside_reading(
-            m, train, s.structure, s.theta) is not None for m in s.members]
-        reading = [m.category == "sensor" and not p and (m.reading or explained_by_reading(
-            m, train, s.structure, s.theta)) for m, p in zip(s.members, pinned)]
+        ranges = [reading_range(m, train, s.structure, s.theta) for m in s.members]
+        pinned = [m.category == "sensor" and outside_range(m, r)
+                  for m, r in zip(s.members, ranges)]
+        reading = [m.category == "sensor" and not p and (m.reading or within_range(m, r))
+                   for m, r, p in zip(s.members, ranges, pinned)]
         # an accelerometer gain its stage found shadowed by the force gain's reading
         # (``pulse_reading.shadowed_by_reading``) refuses the set: not a nuisance either
         shadowed = any(m.key in shadowed_keys for m in s.members)
@@ -284,7 +286,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         if all(checks.values()):
             contrib = contributions(s, val, proc, known, wo)
             shows, own = shown(s, contrib, val, proc, noise, settings)
-            shows, own = shown_pinned(s, shows, own, pinned, wo, tester, train, settings)
+            shows, own = shown_pinned(s, shows, own, [r if p else None for r, p in
+                                                      zip(ranges, pinned)], wo, tester, settings)
             low = [m.label() for m, ok, r in zip(s.members, shows, reading)
                    if not ok and not (r and nuisance is not None)]
             tried[-1]["contributions"] = [float(x) for x in contrib]
