@@ -14,13 +14,15 @@ Each row has the wall time, the process CPU time and the 1-minute load average a
 of the case (the machine is shared: the wall time depends on the load).
 
 Usage: ``python benchmarks/bench_scenarios.py --seeds 2000-2059 [--json FILE] [--verbose]
-[--limit WALL_S | --cpu-limit CPU_S] [--budget-share 0.75] [--force-reading continuous|linear]``
+[--limit WALL_S | --cpu-limit CPU_S] [--budget-share 0.75] [--force-reading continuous|linear|dop853]``
 (a limit gives the diagnosis a time budget of ``--budget-share`` x it, on the same clock:
 a case near the limit returns its anytime verdict, counted as ``budget_reached``, instead
 of a timeout)
 (``--force-reading linear``: the records driven as before issue 16's fifth round, to
 reproduce the batches reported up to 15000-15159; the default drives them with the
-continuous hammer pulse, ``scenarios.FORCE_READINGS``)
+continuous hammer pulse, ``scenarios.FORCE_READINGS``; ``--force-reading dop853``: the
+same scenarios with the records made by an independent simulator, scipy's DOP853, as the
+issue's withheld sets were)
 (``--seeds`` takes ranges and commas; ``--summarise a.json,b.json`` prints saved runs;
 ``--add-after a.json`` fills the visibility after the nominal refit into saved runs).
 Seeds used for development are listed in docs/diagnosis.md; a reported rate must come from
