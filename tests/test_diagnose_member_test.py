@@ -45,3 +45,31 @@ def test_a_gain_beside_a_law_needs_the_test_and_an_interval_without_one():
 def test_a_delay_is_not_a_gain():
     d = Candidate(CHANNEL_DELAY, Location(0, -1, ("acc_m1", "sensor")), {}, fitted=True)
     assert not look_alike_member([_s("damper", "m1"), d], 1)
+
+
+def _set(members, gap):
+    from siva_core._impl.diagnose.set_fit import SetFit
+    m0 = members[0]
+    s = SetFit(m0.effect, m0.loc, {}, fitted=True, members=list(members))
+    s.gap_after = gap
+    return s
+
+
+def test_a_member_matched_by_another_role_in_its_place_is_not_separated():
+    from siva_core._impl.diagnose.member_test import unseparated
+    qd, d13, d3 = _s("quadratic_damper", "m2"), _s("damper", "m1", "m3"), _s("damper", "m3")
+    delay = Candidate(CHANNEL_DELAY, Location(0, -1, ("acc_m3", "sensor")), {}, fitted=True)
+    spring = _s("cubic_spring", "m1", "m3")
+    # fresh seed 17790's gaps: the third damper is matched by a channel delay
+    big = _set([qd, d13, d3], 0.00236)
+    sets = {frozenset(m.key for m in o.members): o for o in (
+        big, _set([qd, d13, delay], 0.00252), _set([qd, d13], 0.00425))}
+    out = unseparated(big.members, big.gap_after, sets, 0.75)
+    assert [k for k, _ in out] == [2]
+    # a set that beats every alternative of another role by the margin is separated
+    pair = _set([qd, d13], 0.00425)
+    sets[frozenset((qd.key, spring.key))] = _set([qd, spring], 0.0182)
+    assert unseparated(pair.members, pair.gap_after, sets, 0.75) == []
+    # a same-role alternative (a look-alike, for swap) does not count
+    sets[frozenset((qd.key, d3.key))] = _set([qd, d3], 0.0045)
+    assert unseparated(pair.members, pair.gap_after, sets, 0.75) == []

@@ -38,7 +38,7 @@ from .set_rules import better, pair_members, relevant
 from .set_members import (contributions, member_coefficients, shown, shown_pinned,
                           with_embedded)
 from .set_test import BlockTest, without_fits
-from .member_test import held_out_shows, look_alike_member
+from .member_test import held_out_shows, look_alike_member, unseparated
 from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
@@ -255,6 +255,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # a pinned gain's step is judged on the gap above the floor (``set_rules.better``)
         judged = [(w, lambda f=f, s=s: tester.z(f, s), p) for w, f, r, p
                   in zip(without, wo, reading, pinned) if not (r and nuisance is not None)]
+        # each member separated from an effect of another role in its place (``member_test``)
+        unsep = [(k, o) for k, o in (unseparated(s.members, s.gap_after, fitted_sets,
+                                                 settings.separation)
+                                     if settings.member_separation and len(s.members) > 1
+                                     else []) if not (reading[k] and nuisance is not None)]
         # a member that looks like the rest of the set needs the held-out test as well
         # (``member_test``): the margins alone let a generic coefficient in
         alike = [k for k, (f, r, p) in enumerate(zip(wo, reading, pinned))
@@ -273,6 +278,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                   "consistent": _consistent(s, settings.record_tolerance),
                   "every_member_needed": all(better(s, w, noise, settings, t, p)
                                              for w, t, p in judged) and alike_ok,
+                  "every_member_separated": not unsep,
                   "better_than_single": better(s, cur_gap, noise, settings, vs_single,
                                                adds_pinned)}
         # the margins alone (the rule before the held-out test): which sets the test let in
@@ -281,6 +287,11 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             and better(s, cur_gap, noise, settings, above_floor=adds_pinned))
         tried.append({"set": s.label(), "closure": float(s.closure), "checks": checks,
                       "held_out_z": tester.known(s), "by_held_out_test": by_test})
+        if unsep:
+            tried[-1]["unseparated"] = {s.members[k].label(): o.label() for k, o in unsep}
+            _say(progress, "  not separated: " + ", ".join(
+                f"{s.members[k].label()} from {o.label()} ({o.gap_after:.4g})"
+                for k, o in unsep))
         if alike:
             tried[-1]["look_alike_members"] = [s.members[k].label() for k in alike]
         if any(pinned):
