@@ -38,6 +38,7 @@ from .set_rules import better, pair_members, relevant
 from .set_members import (contributions, member_coefficients, shown, shown_pinned,
                           with_embedded)
 from .set_test import BlockTest, without_fits
+from .member_test import held_out_shows, look_alike_member, unseparated
 from .swap import swap_members
 from .settings import DiagnoseSettings
 from .verdict import closes_above_noise
@@ -254,6 +255,18 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         # a pinned gain's step is judged on the gap above the floor (``set_rules.better``)
         judged = [(w, lambda f=f, s=s: tester.z(f, s), p) for w, f, r, p
                   in zip(without, wo, reading, pinned) if not (r and nuisance is not None)]
+        # each member separated from an effect of another role in its place (``member_test``)
+        unsep = [(k, o) for k, o in (unseparated(s.members, s.gap_after, fitted_sets,
+                                                 settings.separation)
+                                     if settings.member_separation and len(s.members) > 1
+                                     else []) if not (reading[k] and nuisance is not None)]
+        # a member that looks like the rest of the set needs the held-out test as well
+        # (``member_test``): the margins alone let a generic coefficient in
+        alike = [k for k, (f, r, p) in enumerate(zip(wo, reading, pinned))
+                 if settings.member_test and not p and not (r and nuisance is not None)
+                 and look_alike_member(s.members, k)]
+        alike_ok = all(held_out_shows(s.members, k, tester.z(wo[k], s) if wo[k] is not None
+                                      else math.nan, settings.test_z) for k in alike)
         vs_single = (lambda s=s: tester.z(verdict, s)) if verdict is not None else None
         adds_pinned = verdict is not None and any(m.key == verdict.key for m in s.members) \
             and all(p for m, p in zip(s.members, pinned) if m.key != verdict.key)
@@ -264,7 +277,8 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                       ref, s.gap_after, noise, need, settings)),
                   "consistent": _consistent(s, settings.record_tolerance),
                   "every_member_needed": all(better(s, w, noise, settings, t, p)
-                                             for w, t, p in judged),
+                                             for w, t, p in judged) and alike_ok,
+                  "every_member_separated": not unsep,
                   "better_than_single": better(s, cur_gap, noise, settings, vs_single,
                                                adds_pinned)}
         # the margins alone (the rule before the held-out test): which sets the test let in
@@ -273,6 +287,13 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             and better(s, cur_gap, noise, settings, above_floor=adds_pinned))
         tried.append({"set": s.label(), "closure": float(s.closure), "checks": checks,
                       "held_out_z": tester.known(s), "by_held_out_test": by_test})
+        if unsep:
+            tried[-1]["unseparated"] = {s.members[k].label(): o.label() for k, o in unsep}
+            _say(progress, "  not separated: " + ", ".join(
+                f"{s.members[k].label()} from {o.label()} ({o.gap_after:.4g})"
+                for k, o in unsep))
+        if alike:
+            tried[-1]["look_alike_members"] = [s.members[k].label() for k in alike]
         if any(pinned):
             tried[-1]["pinned_gain"] = [m.label() for m, p in zip(s.members, pinned) if p]
         _say(progress, f"set {s.label()}: closure {s.closure:.3f}, failed "

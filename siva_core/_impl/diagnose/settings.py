@@ -157,6 +157,20 @@ class DiagnoseSettings:
         there is none scores < 0, one moving nothing ~1 (tests/test_diagnose_set_test);
         fresh seed 17241's 7 % accelerometer gain 12.8; invented members on the dev null
         24332 up to 2.33, 17266's spurious force gain 2.22 (thin below 3).
+    member_test: a set member that looks like the rest of the set (a law of the same role
+        as another structural member, or a sensor gain beside a structural law) is needed
+        only when the held-out test shows it too (``test_z`` against the set without it)
+        and, for a gain, its 95 % interval excludes 1 (``member_test``): the margins of
+        ``set_rules.better`` compare with the spectral floor, which leaves out what every
+        model leaves alike (hum in the band, the chain's misfit), and one more coefficient
+        of any kind removes part of that (fresh seed 17790: five kinds each closed 0.45 of
+        the true pair's leftover, and a third damper was named).
+    member_separation: each member of a set must be separated (``separation``) from an
+        effect of another role in its place: a fitted set of the same other members with
+        a law of the other role or a sensor fault instead, whose gap the set does not beat
+        by ``separation`` (``member_test.unseparated``; the single verdict's check (c) for
+        each member).  Fresh seed 17790: with the true pair, a damper m3-ground left
+        0.00236, a channel delay acc_m3 0.00252 -- a generic gain, no law's.
     swap_kinds: once a set is chosen, each structural member's law is swapped for its
         look-alike kinds at its place and the set re-fitted jointly from its own fit
         (``swap.member_swaps``); only this many kinds per member, the best by the train
@@ -268,6 +282,8 @@ class DiagnoseSettings:
     lookalike_pairs: int = 6
     test_blocks: int = 8
     test_z: float = 3.0
+    member_test: bool = True
+    member_separation: bool = True
     swap_kinds: int = 2
     swap_places: int = 1
     swap_noise: float = 1.0
