@@ -56,6 +56,8 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_no_single.py": {"siva_core._impl.diagnose": "the train-ranked pairs"},
     "tests/test_diagnose_triples.py": {"siva_core._impl.diagnose": "sets of three effects"},
     "tests/test_diagnose_set_test.py": {"siva_core._impl.diagnose": "the held-out set test"},
+    "tests/test_diagnose_member_test.py": {
+        "siva_core._impl.diagnose": "the checks on look-alike and generic set members"},
     "tests/test_diagnose_search.py": {"siva_core._impl.diagnose": "the widened set search",
                                       "siva_core._impl.refine": "a candidate's train cost"},
     "tests/test_diagnose_band.py": {"siva_core._impl.diagnose": "the processing band"},
