@@ -203,7 +203,7 @@ def _response(st: Structure, truth: dict[str, float], t: np.ndarray, k: int, pea
     if reading == "linear":
         return simulate(st, st.vector(truth), t, z, z, F, substeps="auto"), F
     if reading == "dop853":
-        return _response_dop853(st, truth, t, k, peak, width), F
+        return _response_dop853(st, truth, t, k, peak, width, F), F
     if reading != "continuous":
         raise ValueError(f"force reading {reading!r}: one of {FORCE_READINGS}")
     fs = (len(t) - 1) / float(t[-1] - t[0])
@@ -218,7 +218,7 @@ def _response(st: Structure, truth: dict[str, float], t: np.ndarray, k: int, pea
 
 
 def _response_dop853(st: Structure, truth: dict[str, float], t: np.ndarray, k: int,
-                     peak: float, width: float) -> Any:
+                     peak: float, width: float, F: np.ndarray) -> Any:
     """The clean response to the continuous half-sine by scipy's DOP853 (an integrator
     independent of ``siva_core.simulate``): integrated before, during and after the pulse
     so its two kinks are never stepped over, at most 1/16 of the pulse per step on it."""
@@ -241,9 +241,9 @@ def _response_dop853(st: Structure, truth: dict[str, float], t: np.ndarray, k: i
     v = np.zeros((len(t), n))
     for a, b in zip(edges[:-1], edges[1:]):
         on = a == PULSE_T0
-        sel = (t >= a) & (t < b) if b < t[-1] else (t >= a)
         if a >= b:
             continue
+        sel = (t >= a) & (t < b) if b < t[-1] else (t >= a)
         sol = solve_ivp(rhs, (a, b), y, method="DOP853", rtol=DOP853_RTOL,
                         atol=1e-12 * max(peak, 1.0), dense_output=True, args=(on,),
                         max_step=width / 16 if on else np.inf)
@@ -253,8 +253,6 @@ def _response_dop853(st: Structure, truth: dict[str, float], t: np.ndarray, k: i
             yy = sol.sol(t[sel])
             q[sel], v[sel] = yy[:n].T, yy[n:].T
         y = sol.y[:, -1]
-    F = np.zeros((len(t), n))
-    F[:, k] = _pulse(t, peak, width)
     a_ = np.asarray(st.accelerations(theta, q, v, F))
     return Simulation(t=t, q=q, v=v, a=a_, substeps=0, backend="scipy-dop853")
 
