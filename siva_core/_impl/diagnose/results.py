@@ -62,6 +62,8 @@ class Candidate:
     # cannot separate from it: [{"candidate", "closure"}]
     reading: bool = False  # a force gain the pulse's reading explains: never named
     # (``pulse_reading``)
+    nuisances: list["Candidate"] = field(default_factory=list)  # in a named set: the
+    # pulse-reading gains fitted with it, never named (``sets.choose_set``)
 
     @property
     def key(self) -> tuple[str, tuple[str, str]]:

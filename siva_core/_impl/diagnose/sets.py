@@ -353,6 +353,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
             named = [m for m in named if m not in chosen_nuisance]
             rule["nuisance"] = [m.label() for m in chosen_nuisance]
             for m in named:
+                m.nuisances = list(chosen_nuisance)
                 m.note = (m.note + "; " if m.note else "") + (
                     "fitted with " + ", ".join(x.label() for x in chosen_nuisance)
                     + " as a nuisance (within the pulse-reading band: not a fault)")
