@@ -210,3 +210,35 @@ def test_the_nominal_with_its_nuisance_gain_is_a_reference_too(monkeypatch) -> N
                                    0.0043, 0.0168, [], [], None, 0.000414,
                                    DiagnoseSettings(), rule)
     assert v is not None and "with_nuisance" not in rule["nominal_identification"]
+
+
+def test_a_pinning_that_barely_moves_the_gap_is_no_new_reference() -> None:
+    """Fresh seed 17890: a true 1.16 force gain closes 0.48 of a gap 2.8 x the floor
+    (0.0221 -> 0.0115); the pinned nominal reaches 0.0219 (1.9 % of what the gain
+    removes): the gain is judged against the nominal as before, not refused for closing
+    0.47 of the pinned gap.  A pinning removing a quarter of it is a reference again."""
+    s = DiagnoseSettings()
+    assert explained_by_nominal(_pin(0.0219), 0.0115, -2.55e10, 0.0221, 0.00787, s) is None
+    moved = 0.0221 - 0.25 * (0.0221 - 0.0115) - 1e-6
+    assert explained_by_nominal(_pin(moved), 0.0115, -2.55e10, 0.0221, 0.00787, s) \
+        is not None
+
+
+def test_the_admissible_rise_uses_the_median_inflation() -> None:
+    """One degenerate parameter (bootstrap / Gauss-Newton 1e19) must not make every
+    pinned point admissible (fresh seed 17866's plain nominal: an RMS of 1.6e19)."""
+    import numpy as np
+
+    from siva_core._impl.diagnose.identified import _median_inflation
+
+    class Res:
+        std = np.array([2.0, 3.0, 1e19, 4.0])
+        std_gauss_newton = np.array([1.0, 1.0, 1.0, 1.0])
+        ci_inflation = 5e18
+
+    assert _median_inflation(Res()) == 3.5
+
+    class Old:
+        ci_inflation = 2.0
+
+    assert _median_inflation(Old()) == 2.0

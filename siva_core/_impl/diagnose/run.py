@@ -31,7 +31,7 @@ from .set_members import fill_closures
 from .set_test import one_value_separation
 from .settings import DiagnoseSettings
 from .signatures import amplitude_signatures
-from .verdict import decide, simplest_same
+from .verdict import decide, simplest_same, stage_floor
 from .sets import choose_set
 from .without_member import KnownFits
 from .ties import break_tie
@@ -131,8 +131,7 @@ def diagnose(structure: Structure, train: Sequence[Recording], val: Sequence[Rec
                 shadowed[c.key] = shadowed_by_reading(c, rk) is not None
         if any(v.category == "sensor" for v in verdicts):  # paired with it at the end
             later += worth_pairing(rk, cur_fit.train_cost, settings)
-        floor = min([cur_fit.train_cost] + [c.train_cost for c in rk
-                                            if np.isfinite(c.train_cost)])
+        floor = stage_floor(cur_fit.train_cost, rk, noise, later=n > 0)
         v, r = decide(rk, cur_gap, floor, settings, later=bool(verdicts), spectral=noise,
                       separated=one_value_separation(cur_train, cur_val, proc,
                                                           settings.test_blocks))

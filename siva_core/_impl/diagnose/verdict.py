@@ -99,6 +99,20 @@ def sensor_above_noise(top: Candidate, gap_before: float, noise_floor: float | N
     return interval is not None and not interval[0] <= none <= interval[1]
 
 
+def stage_floor(train_cost: float, ranking: Sequence[Candidate], spectral: float | None,
+                later: bool) -> float:
+    """The noise floor a stage's verdict is judged against: the lowest train cost reached
+    (a residual that small is reachable, so the noise is not larger); in a stage after a
+    named effect, the spectral floor when lower, as in the final rule -- there the train
+    cost still holds the effect being looked for (fresh seed 17898: a 1.1 force gain
+    beside a coulomb, gap 0.0198 = 2.8 x the spectral floor 0.0070, refused as "at the
+    noise" against its own train cost 0.0158)."""
+    floor = min([train_cost] + [c.train_cost for c in ranking if np.isfinite(c.train_cost)])
+    if later and spectral is not None and spectral > 0:
+        floor = min(floor, spectral)
+    return float(floor)
+
+
 def closes_above_noise(gap_before: float, gap_after: float, noise: float | None,
                        share: float, settings: DiagnoseSettings) -> bool:
     """The size check against the part of the gap a right model *can* remove: at least
