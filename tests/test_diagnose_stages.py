@@ -45,16 +45,14 @@ def test_a_later_stage_is_judged_against_the_noise_not_the_fixed_floor():
     assert at_noise is None                              # below 2 x the noise floor
 
 
-
 def test_a_later_stage_floor_is_the_spectral_one_when_lower():
     """Fresh seed 17898: after a coulomb (closure 0.74) a 1.1 force gain takes the gap
     0.0198 to 0.0131; its own train cost 0.0158 as the floor made the stage read "at the
     noise" (1.2 x); the spectral floor 0.0070 makes it 2.8 x and the gain is named.  The
     first stage keeps the train-cost floor."""
     from siva_core._impl.diagnose import Candidate, Location
-    from siva_core._impl.diagnose.verdict import decide, stage_floor
-
     from siva_core._impl.diagnose.sensors import FORCE_GAIN
+    from siva_core._impl.diagnose.verdict import decide, stage_floor
 
     g = Candidate(FORCE_GAIN, Location(1, -1, ("force_m2", "sensor")), {}, fitted=True,
                   gap_before=0.01976, gap_after=0.0131, closure=0.337, train_cost=0.01584)
@@ -69,6 +67,7 @@ def test_a_later_stage_floor_is_the_spectral_one_when_lower():
     assert before is None and not rule["checks"]["above_noise"]
     named, _ = decide([g], 0.01976, later, s, later=True, spectral=0.00703)
     assert named is g
+
 
 def test_a_lead_removing_many_times_the_noise_is_kept_tentatively():
     """No single closes half of a gap many times the noise (fresh seed 17335: a cubic
