@@ -49,7 +49,7 @@ def same_law(a: Candidate, b: Candidate) -> bool:
 #: laws that can mimic each other over a range of amplitudes (issue 16): fitted side by
 #: side at the leading place, named as rivals when the data cannot separate them
 LOOK_ALIKES = ({"damper", "quadratic_damper", "cubic_damper", "coulomb"},
-               {"spring", "cubic_spring", "clearance"},
+               {"spring", "cubic_spring", "clearance", "quadratic_spring"},
                # with known masses a force gain is a common gain of every response channel:
                # on one DOF (one accelerometer) the two faults are one
                {"accelerometer_gain", "force_gain"})
