@@ -166,6 +166,37 @@ def test_auto_band_for_acceleration_with_hum(make_sdof):
     assert proc.lowpass_diff is None
 
 
+def test_auto_notches_a_line_beside_the_band_edge(make_sdof):
+    """A hum just above the low-pass passes its zero-phase roll-off half-attenuated (issue
+    16, fresh seed 18049: 50.1 Hz hum, 49.6 Hz low-pass): it is notched as well, and what
+    the processed acceleration keeps of it drops from 13 % (half at 18049) to under 2 %."""
+    from scipy import signal
+
+    from siva_core._impl.processing.auto import ORDER, LINE_LEAK, line_reach
+
+    reach = line_reach(ORDER)
+    # forward and backward: the Butterworth's squared gain at ``reach`` x its corner
+    sos = signal.butter(ORDER, 10.0, btype="lowpass", fs=1000.0, output="sos")
+    _, h = signal.sosfreqz(sos, worN=[10.0 * reach], fs=1000.0)
+    assert abs(h[0]) ** 2 == pytest.approx(LINE_LEAK, rel=0.02)  # (bilinear warping)
+    recs = [only(make_sdof(f_n=22.0, noise=0.003, hum=0.01, seed=s)[0], "acc") for s in (1, 2)]
+    proc = Processing.auto(recs, ["x"])
+    lo, hi = proc.bandpass
+    assert hi < 60.0 < hi * reach, (lo, hi)  # the hum sits just past the low-pass
+    assert any(abs(x - 60.0) < 0.5 for x in proc.notch), proc.notch
+
+    def kept(p: Processing) -> float:  # a 60 Hz line's amplitude after / before the chain
+        t = recs[0].time
+        hum = np.sin(2 * np.pi * 60.0 * t)
+        mid = slice(len(t) // 4, 3 * len(t) // 4)  # away from the filters' edge transients
+        return float(np.std(p.filter_acc(hum, recs[0].fs)[mid]) / np.std(hum[mid]))
+    assert kept(proc) < 0.02 < 0.1 < kept(proc.with_(notch=()))
+    # a line farther out is left to the band's roll-off
+    far = [only(make_sdof(f_n=14.0, noise=0.003, hum=0.01, seed=s)[0], "acc") for s in (1, 2)]
+    p14 = Processing.auto(far, ["x"])
+    assert p14.bandpass[1] * reach < 60.0 and not p14.notch
+
+
 def test_auto_differentiates_displacement(make_sdof):
     rec = only(make_sdof(f_n=12.0, noise=0.001)[0], "disp")
     proc = Processing.auto(rec, ["x"])
