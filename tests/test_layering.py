@@ -29,7 +29,10 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
         "siva_core._impl.diagnose.set_rules": "the step above the floor"},
     "tests/test_diagnose_sensor2.py": {
         "siva_core._impl.diagnose": "the separation statistic, the sensor residue"},
+    "tests/test_processing.py": {
+        "siva_core._impl.processing.auto": "the line reach past a band edge"},
     "tests/test_diagnose_sensorside.py": {
+        "siva_core._impl.processing.auto": "the chain's line rule before 79520c9",
         "siva_core._impl.diagnose.pulse_reading": "the lopsided gain range, the 1-DOF note",
         "siva_core._impl.diagnose.set_members": "a sensor member's response channel"},
     "tests/test_refine.py": {"siva_core._impl.output_error": "patches the problem's simulate"},

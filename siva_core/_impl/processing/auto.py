@@ -18,10 +18,13 @@ ORDER = 4
 LINE_LEAK = 0.01
 
 
-def line_reach(order: int, leak: float = LINE_LEAK) -> float:
+def line_reach(order: int, leak: float | None = None) -> float:
     """How far past a band edge (a frequency ratio) a zero-phase Butterworth of ``order``
-    still keeps more than ``leak`` of a line's amplitude: forward and backward, its gain
-    there is 1 / (1 + x^(2 order)), so lines within that ratio of the edge are notched."""
+    still keeps more than ``leak`` (default ``LINE_LEAK``, read when called) of a line's
+    amplitude: forward and backward, its gain there is 1 / (1 + x^(2 order)), so lines
+    within that ratio of the edge are notched.  A leak of 0.5 gives 1: lines inside the
+    band only, the rule before issue 16's fresh seed 18049."""
+    leak = LINE_LEAK if leak is None else leak
     return float((1.0 / leak - 1.0) ** (1.0 / (2 * order)))
 
 
