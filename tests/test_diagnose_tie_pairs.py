@@ -1,6 +1,6 @@
 """A first stage's leads that the tentative one does not separate from are paired with
-the later stages' effects (branch tiepair); a lead separated from it, a law at the later
-effect's place, or the feature switched off gives no pair."""
+the later stages' effects (branch tiepair); a lead separated from it, a law of the lead's
+role at its place, or the feature switched off gives no pair."""
 from __future__ import annotations
 
 import numpy as np
@@ -41,15 +41,19 @@ def test_tied_leads_are_those_the_tentative_lead_does_not_separate_from() -> Non
     assert tied_leads([lead, near], lead, 0.001, s) == []
 
 
-def test_tie_pairs_skip_the_later_effects_place_and_are_bounded() -> None:
+def test_tie_pairs_skip_a_look_alike_at_the_leads_place_and_are_bounded() -> None:
     coulomb = _fit("coulomb", M2G, 0.668, 0.30)
     spring = _fit("cubic_spring", M1G, 0.700, 0.25)
     damper = _fit("quadratic_damper", M12, 0.30, 0.05)
-    same_place = _fit("cubic_spring", M2G, 0.40, 0.1)
-    pairs = tie_pairs([coulomb, spring], [damper, same_place], DiagnoseSettings())
+    same_role = _fit("cubic_damper", M2G, 0.35, 0.08)    # dissipative at coulomb's place
+    other_role = _fit("cubic_spring", M2G, 0.40, 0.1)    # restoring at coulomb's place
+    wide = DiagnoseSettings(tie_pair_fits=10)
+    pairs = tie_pairs([coulomb, spring], [damper, same_role, other_role], wide)
     labels = [(a.label(), b.label()) for a, b in pairs]
     assert (coulomb.label(), damper.label()) == labels[0]
-    assert (coulomb.label(), same_place.label()) not in labels  # one place: no pair
-    assert (spring.label(), same_place.label()) in labels
-    assert len(tie_pairs([coulomb, spring], [damper, same_place],
+    assert (coulomb.label(), same_role.label()) not in labels  # one place, one role
+    assert (coulomb.label(), other_role.label()) in labels     # one place, two roles
+    assert (spring.label(), same_role.label()) in labels
+    assert (spring.label(), other_role.label()) in labels      # same law, other place
+    assert len(tie_pairs([coulomb, spring], [damper, other_role],
                          DiagnoseSettings(tie_pair_fits=1))) == 1

@@ -56,6 +56,7 @@ PRIVATE_ALLOWED: dict[str, dict[str, str]] = {
     "tests/test_diagnose_sets.py": {"siva_core._impl.diagnose": "sets of effects"},
     "tests/test_diagnose_weak_lead.py": {"siva_core._impl.diagnose": "the weak lead's places"},
     "tests/test_diagnose_tie_pairs.py": {"siva_core._impl.diagnose": "the tied leads' pairs"},
+    "tests/test_diagnose_pair_places.py": {"siva_core._impl.diagnose": "two laws at one place"},
     "tests/test_diagnose_no_single.py": {"siva_core._impl.diagnose": "the train-ranked pairs"},
     "tests/test_diagnose_triples.py": {"siva_core._impl.diagnose": "sets of three effects"},
     "tests/test_diagnose_set_test.py": {"siva_core._impl.diagnose": "the held-out set test"},

@@ -30,19 +30,19 @@ from .budget import clock_of
 from .outputs import Progress, _say
 from .parallel import run_each, worker_count
 from .results import Candidate
+from .set_rules import can_pair
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, refit_stopped, set_stop
 from .settings import DiagnoseSettings
 
 
 def can_grow(base: SetFit, c: Candidate) -> bool:
     """``c`` can join ``base``: a sensor fault when the set has none, a structural effect
-    at a place no structural member uses."""
+    that every structural member can be paired with (``set_rules.can_pair``)."""
     if any(m.key == c.key for m in base.members):
         return False
     if c.category == "sensor":
         return base.sensor is None
-    return all(m.loc.between != c.loc.between for m in base.members
-               if m.category == "structure")
+    return all(can_pair(m, c) for m in base.members)
 
 
 def grow(base: SetFit, c: Candidate, structure: Structure, train: Sequence[Recording],

@@ -16,6 +16,7 @@ from .joint_sensor import force_scale_retune, retune_sensor
 from .model_edit import augmented
 from .outputs import Progress, _say
 from .results import Candidate
+from .set_rules import can_pair
 from .set_fit import SetFit, _refit, finish_set, mark_stopped, set_stop
 from .settings import DiagnoseSettings
 
@@ -66,7 +67,7 @@ def _fit_pair(a: Candidate, b: Candidate, structure: Structure, train: Sequence[
                          theta=theta, fitted=True, amplitudes=a.amplitudes,
                          members=[a, b], sensor=b)
         else:
-            if a.loc.between == b.loc.between:
+            if not can_pair(a, b):
                 return None
             scales = {k: max(abs(v), 1e-12) for k, v in b.coefficients.items()}
             aug, names = augmented(a.structure, b.effect, b.loc, scales)

@@ -7,8 +7,22 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .nominal import DISSIPATIVE
 from .results import Candidate
 from .settings import DiagnoseSettings
+
+
+def can_pair(a: Candidate, b: Candidate) -> bool:
+    """Whether two structural laws may be members of one set: at distinct places, or at
+    one place with distinct roles (one dissipative, one restoring: a joint that both rubs
+    and stiffens, a damper beside a missing spring).  Two laws of one role at one place are
+    look-alikes, told apart by the kind check, not a pair (pair matrix row lono: damper
+    NO-ground + spring NO-ground was never fitted: nothing but the damper was named, its
+    set leaving 27 x the noise floor).  A sensor fault pairs with any structural law."""
+    if a.category != "structure" or b.category != "structure":
+        return True
+    return a.loc.between != b.loc.between or (
+        (a.effect.kind in DISSIPATIVE) != (b.effect.kind in DISSIPATIVE))
 
 
 def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: int = 3

@@ -34,7 +34,7 @@ from .results import Candidate
 from .scoring import judge
 from .set_fit import SetFit, refit_stopped
 from .pruned import without_members
-from .set_rules import better, pair_members, relevant
+from .set_rules import better, can_pair, pair_members, relevant
 from .set_members import (contributions, member_coefficients, shown, shown_pinned,
                           with_embedded)
 from .set_test import BlockTest, without_fits
@@ -200,6 +200,7 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
                      if x.key != lead.key and frozenset((x.key, m.key)) not in done]
             swaps = swaps[:settings.lookalike_pairs]
             done.update(frozenset((x.key, m.key)) for x, m in swaps)
+            swaps += _later_mates(seconds, refused, lead, done, settings)
         if swaps:
             against = best_known(options, ranking)
             options += fit_all(swaps)
@@ -391,6 +392,32 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
         return verdict, [verdict], rule
     return None, [], rule
 
+
+
+def _later_mates(seconds: Sequence[Candidate], refused: Sequence[Candidate],
+                 lead: Candidate, done: set[frozenset], settings: DiagnoseSettings
+                 ) -> list[tuple[Candidate, Candidate]]:
+    """The best look-alike second lead (by train cost, after its refit from the lead's
+    force) with the later stage's best fits by train cost (``refused``, fitted on the
+    lead's model), when that stage named nothing; added to the look-alike pairs.  The
+    lead's best pairs by *validation* gap choose its mates otherwise, and a wrong-law lead
+    makes the right mate's pair look poor there: pair row lono quadratic damper LO-NO +
+    cubic spring LO-ground led by a cubic damper LO-NO, the cubic spring second of the
+    later stage by train cost but third of the lead's pairs by validation gap (after a
+    channel delay and a clearance), never paired with the quadratic damper.  The later
+    stage's own fit of the look-alike itself, or of a law of its role at its place, is no
+    mate.  ``done`` is updated."""
+    fits = [x for x in seconds if x.key != lead.key and np.isfinite(x.train_cost)]
+    if not fits:
+        return []
+    x = min(fits, key=lambda c: c.train_cost)
+    mates = [m for m in refused if m.key != x.key and can_pair(x, m)]
+    out = []
+    for m in mates[:settings.lookalike_mates]:
+        if frozenset((x.key, m.key)) not in done:
+            done.add(frozenset((x.key, m.key)))
+            out.append((x, m))
+    return out
 
 
 def _gap(s: Candidate) -> float:

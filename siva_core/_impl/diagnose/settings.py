@@ -143,9 +143,11 @@ class DiagnoseSettings:
         gap), each started from the lead's force matched by the look-alike law
         (``grow.law_swap``): a wrong-law lead (a linear damper where a quadratic one is
         true) does not block the right pair.  0 = off.
-    lookalike_mates: ... that many mates.
+    lookalike_mates: ... that many mates; and the best of them by train cost is also
+        paired with that many of the later stage's best fits by train cost when that stage
+        named nothing (``sets._later_mates``).
     lookalike_pairs: at most this many such extra pair fits (CPU: a LO-NO pair fit takes
-        10-30 s).
+        10-30 s), besides those ``lookalike_mates`` later-stage pairs.
     test_blocks: the held-out test of a set against a smaller one (``set_test``): the
         noise's share of their gain (the cross term of the larger set's residual with the
         change of the outputs) is summed over this many contiguous time blocks of each

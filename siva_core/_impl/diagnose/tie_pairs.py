@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from .results import Candidate
+from .set_rules import can_pair
 from .settings import DiagnoseSettings
 
 
@@ -57,13 +58,12 @@ def tied_leads(ranking: Sequence[Candidate], lead: Candidate, noise: float | Non
 def tie_pairs(leads: Sequence[Candidate], seconds: Sequence[Candidate],
               settings: DiagnoseSettings) -> list[tuple[Candidate, Candidate]]:
     """(tied lead, later effect) pairs to fit jointly: the later effect a sensor fault or
-    a structural law at another place than the lead's; at most ``tie_pair_fits``, the
-    best-ranked lead's first."""
+    a structural law the lead can be paired with (``set_rules.can_pair``); at most
+    ``tie_pair_fits``, the best-ranked lead's first."""
     out = []
     for a in leads:
         for b in seconds:
-            if b.key == a.key or (b.category == "structure"
-                                  and b.loc.between == a.loc.between):
+            if b.key == a.key or not can_pair(a, b):
                 continue
             if b.structure is None or b.theta is None or not b.fitted:
                 continue
