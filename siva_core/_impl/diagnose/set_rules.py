@@ -28,8 +28,10 @@ def can_pair(a: Candidate, b: Candidate) -> bool:
 def pair_members(ranking: Sequence[Candidate], settings: DiagnoseSettings, n: int = 3
                  ) -> list[Candidate]:
     """The singles worth pairing: the ``n`` best structural fits by validation closure
-    (distinct places first: two laws at one place are look-alikes, told apart by the kind
-    check, not a pair) that close at least a little, and the best sensor fault."""
+    (distinct places first: the first stage's laws at one place are mostly look-alikes,
+    told apart by the kind check; a law of the other role at a member's place is paired
+    from the later stages' fits, ``can_pair``) that close at least a little, and the best
+    sensor fault."""
     fitted = [c for c in ranking if c.fitted and np.isfinite(c.closure) and c.closure > 0.05
               and not c.reading]
     struct = [c for c in fitted if c.category == "structure"]

@@ -393,7 +393,6 @@ def choose_set(verdict: Candidate | None, verdicts: Sequence[Candidate],
     return None, [], rule
 
 
-
 def _later_mates(seconds: Sequence[Candidate], refused: Sequence[Candidate],
                  lead: Candidate, done: set[frozenset], settings: DiagnoseSettings
                  ) -> list[tuple[Candidate, Candidate]]:
